@@ -1,0 +1,174 @@
+"""skin_bag: replay a bag of joint states into skin_node and record what it says.
+
+Reads a rosbag2 bag (MCAP or SQLite3) with ``rosbags``, publishes its
+``sensor_msgs/msg/JointState`` messages on ``joint_states`` at the recorded
+rate (their header stamps untouched), and records the node's outputs into a
+new bag. Messages pass through as serialized CDR in both directions, so the
+tool neither parses nor re-encodes them::
+
+    skin_bag in_bag out_bag --storage mcap --record skin/points skin/diagnostics
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import threading
+import time
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+from sensor_msgs.msg import JointState
+
+JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
+#: Message type of each topic the node publishes; other topics need "topic=pkg/msg/Type".
+KNOWN_TOPICS = {
+    "skin/points": "sensor_msgs/msg/PointCloud2",
+    "skin/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
+    "skin/mesh": "shape_msgs/msg/Mesh",
+    "skin/marker": "visualization_msgs/msg/Marker",
+}
+# Deep enough that a recording never drops a frame the node sent.
+QOS_RECORD = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                        reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE)
+QOS_PLAY = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+
+
+def _message_class(type_name: str):
+    """``"sensor_msgs/msg/PointCloud2"`` -> the rclpy message class."""
+    pkg, sub, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{pkg}.{sub}"), name)
+
+
+def read_joint_states(path: str, topic: str | None = None) -> list[tuple[int, bytes]]:
+    """(log time ns, CDR bytes) of every JointState in a bag, in log-time order.
+
+    Raises
+    ------
+    ValueError
+        When the bag holds no JointState topic (or not ``topic``).
+    """
+    with Reader(path) as reader:
+        conns = [c for c in reader.connections if c.msgtype == JOINT_STATE_TYPE
+                 and (topic is None or c.topic.lstrip("/") == topic.lstrip("/"))]
+        if not conns:
+            found = sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})
+            raise ValueError(f"{path}: no {JOINT_STATE_TYPE} topic"
+                             f"{' ' + topic if topic else ''}; it holds {found}")
+        return [(t, bytes(raw)) for _, t, raw in reader.messages(connections=conns)]
+
+
+class BagRecorder(Node):
+    """Publishes raw joint states and writes raw recordings into a bag."""
+
+    def __init__(self, writer: Writer, topics: dict[str, str]) -> None:
+        super().__init__("skin_bag")
+        typestore = get_typestore(Stores.ROS2_JAZZY)
+        self.counts = {t: 0 for t in topics}
+        self._writer, self._lock = writer, threading.Lock()
+        self.pub = self.create_publisher(JointState, "joint_states", QOS_PLAY)
+        self.subs = []
+        for topic, type_name in topics.items():
+            conn = writer.add_connection("/" + topic.lstrip("/"), type_name, typestore=typestore)
+            self.subs.append(self.create_subscription(
+                _message_class(type_name), topic, self._recorder(topic, conn), QOS_RECORD,
+                raw=True))
+
+    def _recorder(self, topic: str, conn):
+        def record(raw: bytes) -> None:
+            with self._lock:
+                self._writer.write(conn, self.get_clock().now().nanoseconds, raw)
+                self.counts[topic] += 1
+        return record
+
+    def matched(self) -> bool:
+        """True once the node listens to us and we listen to each of its topics."""
+        return (self.pub.get_subscription_count() > 0
+                and all(s.get_publisher_count() > 0 for s in self.subs))
+
+
+def _parse(argv: list[str]) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(prog="skin_bag", description=__doc__.splitlines()[0])
+    ap.add_argument("in_bag", help="rosbag2 folder (or .mcap/.db3 file) of JointState")
+    ap.add_argument("out_bag", help="new bag folder to record into (must not exist)")
+    ap.add_argument("--topic", help="JointState topic to play (default: every JointState topic)")
+    ap.add_argument("--record", nargs="+", default=["skin/points", "skin/diagnostics"],
+                    metavar="TOPIC[=TYPE]", help="topics to record (default: %(default)s)")
+    ap.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
+    ap.add_argument("--rate", type=float, default=1.0, help="playback speed factor")
+    ap.add_argument("--wait", type=float, default=30.0,
+                    help="seconds to wait for skin_node to appear")
+    ap.add_argument("--linger", type=float, default=2.5,
+                    help="seconds to keep recording after the last message (>1 catches "
+                         "the final 1 Hz diagnostics)")
+    args = ap.parse_args(argv)
+    if args.rate <= 0:
+        ap.error("--rate must be > 0")
+    return args
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console script ``skin_bag``; exit 0 when played and recorded, 1 otherwise."""
+    args_ros = sys.argv if argv is None else ["skin_bag", *argv]
+    args = _parse(rclpy.utilities.remove_ros_args(args_ros)[1:])
+    topics = {}
+    for spec in args.record:
+        topic, _, type_name = spec.partition("=")
+        if not type_name and topic.lstrip("/") not in KNOWN_TOPICS:
+            print(f"skin_bag: error: give the type of {topic} as {topic}=pkg/msg/Type",
+                  file=sys.stderr)
+            return 1
+        topics[topic] = type_name or KNOWN_TOPICS[topic.lstrip("/")]
+    try:
+        messages = read_joint_states(args.in_bag, args.topic)
+    except Exception as e:  # noqa: BLE001 - rosbags raises several types for a bad bag
+        print(f"skin_bag: error: {e}", file=sys.stderr)
+        return 1
+    storage = StoragePlugin.MCAP if args.storage == "mcap" else StoragePlugin.SQLITE3
+    rclpy.init(args=args_ros)
+    executor = SingleThreadedExecutor()
+    try:
+        with Writer(args.out_bag, version=8, storage_plugin=storage) as writer:
+            node = BagRecorder(writer, topics)
+            executor.add_node(node)
+            spinner = threading.Thread(target=executor.spin, daemon=True)
+            spinner.start()
+            deadline = time.monotonic() + args.wait
+            while not node.matched():
+                if time.monotonic() > deadline:
+                    print(f"skin_bag: error: no skin_node on joint_states/{list(topics)} "
+                          f"after {args.wait:.0f} s", file=sys.stderr)
+                    return 1
+                time.sleep(0.05)
+            # Matching is not symmetric in time: give the node's reader a moment to
+            # match our writer too, or the first messages can be lost.
+            time.sleep(0.5)
+            t0, start = messages[0][0], time.monotonic()
+            for t, raw in messages:
+                delay = start + (t - t0) * 1e-9 / args.rate - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+                node.pub.publish(raw)
+            played_s = time.monotonic() - start
+            time.sleep(args.linger)
+            executor.shutdown()
+            with node._lock:
+                counts = dict(node.counts)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 1
+    finally:
+        rclpy.try_shutdown()
+    print(f"skin_bag: played {len(messages)} joint states in {played_s:.2f} s; recorded "
+          + ", ".join(f"{t} {n}" for t, n in counts.items()) + f" into {args.out_bag}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

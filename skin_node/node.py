@@ -1,0 +1,377 @@
+"""skin_node: joint states in, deformed skin out.
+
+A thin listener in the manner of robot_state_publisher: the JointState callback
+validates the message and maps it onto the character's channel vector
+(``msg_adapters``), the core deforms the surface (``skin_node.Pipeline``), and
+the result is published. No geometry lives here.
+
+Topics (relative, so they can be remapped)
+------------------------------------------
+``joint_states`` (sub, sensor_msgs/JointState)
+    RELIABLE, KEEP_LAST 10, VOLATILE - the QoS of robot_state_publisher, so
+    the usual joint state publishers match. Reliable delivery means every
+    message reaches the callback; the callback is cheap (validate + map), so
+    the DDS queue never fills and no frame is lost unseen.
+``skin/points`` (pub, sensor_msgs/PointCloud2)
+    One per processed frame, stamp copied from the input, ``frame_id`` param.
+``skin/mesh`` (pub, shape_msgs/Mesh)
+    The rest surface, published once: RELIABLE + TRANSIENT_LOCAL so a late
+    subscriber gets the topology (vertex order matches ``skin/points``).
+``skin/marker`` (pub, visualization_msgs/Marker TRIANGLE_LIST)
+    Only built while someone subscribes.
+``skin/diagnostics`` (pub, diagnostic_msgs/DiagnosticArray, 1 Hz)
+    ms per stage, frames processed / skipped as stale / rejected by reason,
+    unknown joint names.
+
+Newest frame first
+------------------
+The callback stores the newest mapped pose in a one-slot mailbox; a worker
+thread deforms whatever is in the slot. A pose that is overwritten before
+the worker took it is counted as *skipped as stale*: the node never queues
+behind the input, and latency stays one frame. Because mapping happens in
+the callback, a skipped frame still updates the channels it carries.
+
+Parameter changes pass the set-parameters callback's checks and take effect
+at the start of the next frame; ``character``, ``surface_vertices``,
+``name_map`` and ``joint_names`` are read-only.
+"""
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+import time
+from collections import Counter
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterType, SetParametersResult)
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState, PointCloud2
+from shape_msgs.msg import Mesh
+from std_msgs.msg import Header
+from visualization_msgs.msg import Marker
+
+import skin_node
+from msg_adapters import (ChannelMapper, JointStateError, Reason, diagnostic_array,
+                          joint_state_to_arrays, load_name_map, mesh_to_msg,
+                          triangle_list_marker_cdr, vertices_to_point_cloud2)
+
+NODE_NAME = "skin_node"
+THROTTLE_S = 2.0
+
+QOS_JOINT_STATES = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                              reliability=ReliabilityPolicy.RELIABLE,
+                              durability=DurabilityPolicy.VOLATILE)
+QOS_STREAM = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5,
+                        reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE)
+QOS_LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+_PARAM_TYPES = {int: ParameterType.PARAMETER_INTEGER, float: ParameterType.PARAMETER_DOUBLE,
+                bool: ParameterType.PARAMETER_BOOL, str: ParameterType.PARAMETER_STRING,
+                list: ParameterType.PARAMETER_STRING_ARRAY}
+
+
+def _spec_descriptor(name: str, spec: skin_node.ParamSpec) -> ParameterDescriptor:
+    """A ParameterDescriptor (type, range, description) from a core ParamSpec."""
+    text = spec.description + (f" (one of {list(spec.choices)})" if spec.choices else "")
+    d = ParameterDescriptor(name=name, type=_PARAM_TYPES[spec.type], description=text)
+    lo, hi = spec.min, spec.max
+    if spec.type is int and (lo is not None or hi is not None):
+        d.integer_range = [IntegerRange(from_value=int(lo if lo is not None else -2**63),
+                                        to_value=int(hi if hi is not None else 2**63 - 1),
+                                        step=0)]
+    elif spec.type is float and (lo is not None or hi is not None):
+        d.floating_point_range = [FloatingPointRange(
+            from_value=float(lo if lo is not None else -np.inf),
+            to_value=float(hi if hi is not None else np.inf), step=0.0)]
+    return d
+
+
+def _stamp_ns(stamp) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+class SkinNode(Node):
+    """Subscribes ``joint_states``, publishes the deformed skin.
+
+    All set-up (character, rig, pipeline, a warm-up deform that compiles the
+    numba kernels) happens here, before the first callback can run.
+    """
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        t_start = time.perf_counter()
+        self._declare_parameters()
+        p = lambda name: self.get_parameter(name).value  # noqa: E731
+
+        n = p("surface_vertices")
+        self.character = skin_node.load_character(
+            p("character"), **({"surface_vertices": n} if n > 0 else {}))
+        self.declare_parameter(
+            "joint_names", self.character.channel_names,
+            ParameterDescriptor(type=ParameterType.PARAMETER_STRING_ARRAY, read_only=True,
+                                description="channels accepted on joint_states, in pose "
+                                            "order (root_t* metres, *_r* radians)"),
+            ignore_override=True)
+        name_map = load_name_map(p("name_map")) if p("name_map") else None
+        self._mapper = ChannelMapper(self.character.channel_names, name_map)
+        self._pipeline_kwargs = {k: p(k) for k in skin_node.PIPELINE_PARAMS}
+        self._pipe = skin_node.Pipeline(self.character, stages=list(p("pipeline")),
+                                        **self._pipeline_kwargs)
+        self._frame_id = p("frame_id")
+        t_warm = time.perf_counter()
+        # Bent joints wake the solver and collision stages: compile them now, then
+        # settle back at rest, so the first real frame runs at full speed.
+        q_bent = np.concatenate([np.zeros(3),
+                                 self.character.skeleton.limits.mean(axis=-1).ravel()])
+        for q in (q_bent, np.zeros_like(q_bent)):
+            if not np.all(np.isfinite(self._pipe.deform(q))):
+                raise ValueError(f"{p('character')}: warm-up pose deforms to non-finite vertices")
+        warm_s = time.perf_counter() - t_warm
+
+        # Counters (written by the callback or the worker, read by the 1 Hz timer).
+        self._rejected: Counter = Counter()
+        self._received = self._processed = self._stale = self._failed = 0
+        self._last_stamp_ns = -1
+        self._period = {"frames": 0, "deform_ms": 0.0, "latency_ms": 0.0}
+        self._timings: dict = dict(self._pipe.timings)
+        # One-slot mailbox between the callback and the worker.
+        self._cond = threading.Condition()
+        self._pending: tuple | None = None
+        self._param_updates: dict = {}
+        self._stopping = False
+
+        self._points_pub = self.create_publisher(PointCloud2, "skin/points", QOS_STREAM)
+        self._marker_pub = self.create_publisher(Marker, "skin/marker", QOS_STREAM)
+        self._mesh_pub = self.create_publisher(Mesh, "skin/mesh", QOS_LATCHED)
+        self._diag_pub = self.create_publisher(DiagnosticArray, "skin/diagnostics", 10)
+        self._mesh_pub.publish(mesh_to_msg(self.character.V, self.character.F))
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._worker = threading.Thread(target=self._work, name="skin_worker", daemon=True)
+        self._worker.start()
+        self.create_subscription(JointState, "joint_states", self._on_joint_state,
+                                 QOS_JOINT_STATES)
+        self.create_timer(1.0, self._on_diagnostics_timer)
+        self.get_logger().info(
+            f"ready in {time.perf_counter() - t_start:.2f} s (warm-up deform {warm_s:.2f} s): "
+            f"character '{self.character.name}' {len(self.character.V)} vertices "
+            f"{len(self.character.F)} triangles {self.character.n_channels} channels, "
+            f"stages {list(p('pipeline'))}")
+
+    # ------------------------------------------------------------ parameters
+    def _declare_parameters(self) -> None:
+        S, SA, I = (ParameterType.PARAMETER_STRING, ParameterType.PARAMETER_STRING_ARRAY,
+                    ParameterType.PARAMETER_INTEGER)
+        self.declare_parameter("character", "arm", ParameterDescriptor(
+            type=S, read_only=True,
+            description="built-in character name (arm | humanoid) or a character file path"))
+        self.declare_parameter("surface_vertices", 0, ParameterDescriptor(
+            type=I, read_only=True, integer_range=[IntegerRange(from_value=0,
+                                                                to_value=2_000_000, step=0)],
+            description="target surface vertex count of a built-in character; "
+                        "0 = the character's default"))
+        self.declare_parameter("pipeline", list(skin_node.DEFAULT_STAGES), ParameterDescriptor(
+            type=SA, description=f"stages in order, from {list(skin_node.STAGE_NAMES)}"))
+        self.declare_parameter("frame_id", "world", ParameterDescriptor(
+            type=S, description="frame of skin/points and skin/marker"))
+        self.declare_parameter("name_map", "", ParameterDescriptor(
+            type=S, read_only=True,
+            description="YAML file mapping incoming joint names to channel names; "
+                        "'' = names are channel names"))
+        for name, spec in skin_node.PIPELINE_PARAMS.items():
+            default = list(spec.default) if spec.type is list else spec.default
+            self.declare_parameter(name, default, _spec_descriptor(name, spec))
+
+    def _on_set_parameters(self, params: list) -> SetParametersResult:
+        """Check a change; a valid one is applied by the worker before the next frame.
+
+        Types, ranges and read-only flags are enforced by the descriptors.
+        """
+        updates = {}
+        for param in params:
+            if param.name == "pipeline":
+                stages = list(param.value)
+                bad = [s for s in stages if s not in skin_node.STAGE_NAMES]
+                if not stages or bad:
+                    return SetParametersResult(
+                        successful=False,
+                        reason=f"pipeline needs stages from {list(skin_node.STAGE_NAMES)}, "
+                               f"got unknown {bad}" if bad else "pipeline must not be empty")
+            elif param.name == "frame_id" and not param.value:
+                return SetParametersResult(successful=False, reason="frame_id must not be empty")
+            elif param.name in skin_node.PIPELINE_PARAMS:
+                try:  # choices and cross-checks the descriptor cannot express
+                    skin_node.PIPELINE_PARAMS[param.name].check(param.name, param.value)
+                except ValueError as e:
+                    return SetParametersResult(successful=False, reason=str(e))
+            updates[param.name] = param.value
+        with self._cond:
+            self._param_updates.update(updates)
+        return SetParametersResult(successful=True)
+
+    def _apply_param_updates(self) -> None:
+        with self._cond:
+            updates, self._param_updates = self._param_updates, {}
+        if not updates:
+            return
+        self._frame_id = updates.pop("frame_id", self._frame_id)
+        stages = updates.pop("pipeline", None)
+        core = {k: v for k, v in updates.items() if k in skin_node.PIPELINE_PARAMS}
+        try:
+            if stages is not None:
+                self._pipe = skin_node.Pipeline(self.character, stages=list(stages),
+                                                **{**self._pipeline_kwargs, **core})
+            elif core:
+                self._pipe.set_params(**core)
+            self._pipeline_kwargs.update(core)
+            self.get_logger().info(f"parameters applied: {sorted(core) + (['pipeline'] if stages else [])}")
+        except ValueError as e:
+            self.get_logger().error(f"parameter change not applied: {e}")
+
+    # ------------------------------------------------------------ callbacks
+    def _on_joint_state(self, msg: JointState) -> None:
+        """Validate and map; hand the pose to the worker (newest wins)."""
+        self._received += 1
+        try:
+            stamp_ns = _stamp_ns(msg.header.stamp)
+            if stamp_ns < self._last_stamp_ns:
+                raise JointStateError(Reason.STAMP_BACKWARDS,
+                                      f"stamp {stamp_ns} ns < previous {self._last_stamp_ns} ns")
+            names, positions = joint_state_to_arrays(msg)
+            q = self._mapper.apply(names, positions).copy()
+        except JointStateError as e:
+            self._rejected[e.reason.value] += 1
+            self.get_logger().warning(f"joint_states rejected ({sum(self._rejected.values())} "
+                                      f"so far): {e}", throttle_duration_sec=THROTTLE_S)
+            return
+        self._last_stamp_ns = stamp_ns
+        with self._cond:
+            if self._pending is not None:
+                self._stale += 1
+            self._pending = (msg.header.stamp, q, time.perf_counter())
+            self._cond.notify()
+
+    def _work(self) -> None:
+        """Worker thread: deform the newest pending pose and publish it."""
+        while True:
+            with self._cond:
+                while self._pending is None and not self._stopping:
+                    self._cond.wait()
+                if self._stopping:
+                    return
+                stamp, q, t_received = self._pending
+                self._pending = None
+            try:
+                self._process(stamp, q, t_received)
+            except Exception as e:  # noqa: BLE001 - a bad frame must not stop the node
+                if self._stopping:
+                    return
+                self._failed += 1
+                self.get_logger().error(f"frame failed: {type(e).__name__}: {e}",
+                                        throttle_duration_sec=THROTTLE_S)
+
+    def _process(self, stamp, q: np.ndarray, t_received: float) -> None:
+        self._apply_param_updates()
+        t0 = time.perf_counter()
+        V = self._pipe.deform(q)
+        deform_ms = 1e3 * (time.perf_counter() - t0)
+        if not np.all(np.isfinite(V)):
+            self._failed += 1
+            self.get_logger().warning("deformed surface has NaN/Inf; frame dropped",
+                                      throttle_duration_sec=THROTTLE_S)
+            return
+        header = Header(stamp=stamp, frame_id=self._frame_id)
+        self._points_pub.publish(vertices_to_point_cloud2(V, header))
+        if self._marker_pub.get_subscription_count() > 0:
+            self._marker_pub.publish(triangle_list_marker_cdr(V, self.character.F, header))
+        self._processed += 1
+        self._timings = dict(self._pipe.timings)
+        self._period["frames"] += 1
+        self._period["deform_ms"] += deform_ms
+        self._period["latency_ms"] += 1e3 * (time.perf_counter() - t_received)
+
+    def _on_diagnostics_timer(self) -> None:
+        period, self._period = self._period, {"frames": 0, "deform_ms": 0.0, "latency_ms": 0.0}
+        n = max(period["frames"], 1)
+        unknown = self._mapper.unknown_counts
+        rejected = {f"rejected_{r.value}": self._rejected[r.value] for r in Reason}
+        values = {
+            "frames_received": self._received,
+            "frames_processed": self._processed,
+            "frames_skipped_stale": self._stale,
+            "frames_failed": self._failed,
+            "rejected_total": sum(self._rejected.values()),
+            **rejected,
+            "unknown_names": ",".join(sorted(unknown)),
+            "unknown_name_count": len(unknown),
+            "fps": float(period["frames"]),
+            "ms_per_frame": period["deform_ms"] / n,
+            "ms_receive_to_publish": period["latency_ms"] / n,
+            **{f"ms_{k}": float(v) for k, v in self._timings.items()},
+        }
+        level = "error" if self._failed else "warn" if values["rejected_total"] or unknown else "ok"
+        message = (f"{self._processed} processed, {self._stale} skipped as stale, "
+                   f"{values['rejected_total']} rejected")
+        self._diag_pub.publish(diagnostic_array(
+            Header(stamp=self.get_clock().now().to_msg()), f"{NODE_NAME}: pipeline",
+            self.character.name, level, message, values))
+        if period["frames"]:
+            stages = " ".join(f"{k} {v:.2f}" for k, v in self._timings.items() if k != "total")
+            self.get_logger().info(
+                f"{period['frames']} frames/s | {values['ms_per_frame']:.2f} ms per frame "
+                f"({stages}) | receive->publish {values['ms_receive_to_publish']:.2f} ms | "
+                f"{message}")
+
+    def stop(self) -> None:
+        """Stop the worker (it finishes the frame it is on)."""
+        with self._cond:
+            self._stopping = True
+            self._cond.notify()
+        self._worker.join(timeout=1.5)
+
+
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+def main(args: list | None = None) -> int:
+    """Console script ``skin_node``: exit 0 on SIGINT/SIGTERM, 2 on a set-up error."""
+    # rclpy's own handlers (installed by init) shut the context down and then
+    # chain to this one, so a SIGTERM during set-up interrupts it too.
+    signal.signal(signal.SIGTERM, _interrupt)
+    rclpy.init(args=args)
+    try:
+        node = SkinNode()
+    except KeyboardInterrupt:
+        rclpy.try_shutdown()
+        return 0
+    except (ValueError, OSError, ParameterException) as e:
+        print(f"{NODE_NAME}: error: {e}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    except Exception as e:  # noqa: BLE001 - one line, not a traceback, for any set-up failure
+        print(f"{NODE_NAME}: error: {type(e).__name__}: {e}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.stop()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

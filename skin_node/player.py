@@ -1,0 +1,150 @@
+"""mocap_player: publish a motion clip as sensor_msgs/JointState on ``joint_states``.
+
+The clip is a built-in one (``--clip``, default per character) or a BVH file
+(``--bvh``) retargeted onto the character's skeleton, played at its own frame
+rate times ``--rate``. Every option is also a ROS parameter of the same name
+(``--ros-args -p clip:=walk``)::
+
+    mocap_player --character humanoid --clip walk --loop
+    mocap_player --character humanoid --bvh walk.bvh --mapping config/cmu_to_humanoid.yaml
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+import rclpy
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.task import Future
+from sensor_msgs.msg import JointState
+
+from msg_adapters import channels_to_joint_state, load_name_map
+
+# Matches skin_node's joint_states subscription (robot_state_publisher's QoS).
+QOS_JOINT_STATES = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                              reliability=ReliabilityPolicy.RELIABLE,
+                              durability=DurabilityPolicy.VOLATILE)
+
+
+def config_path(name: str) -> Path:
+    """A file of the package's config/ folder, installed or in the source tree."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        path = Path(get_package_share_directory("skin_node")) / "config" / name
+        if path.exists():
+            return path
+    except (ImportError, LookupError, ValueError):
+        pass
+    return Path(__file__).resolve().parents[1] / "config" / name
+
+
+def character_skeleton(character: str):
+    """The skeleton of a built-in character or a character file, without rigging it."""
+    from skin_node.builtin.characters import BUILTIN_CHARACTERS
+    if character in BUILTIN_CHARACTERS:
+        # The skeleton does not depend on the density: the coarsest mesh is cheapest.
+        return BUILTIN_CHARACTERS[character](surface_vertices=2000)[2]
+    from skin_node import load_character
+    return load_character(character).skeleton
+
+
+def load_motion(character: str, clip: str = "", bvh: str = "",
+                mapping: str = "") -> tuple[str, list[str], np.ndarray, float]:
+    """(name, channel names, (T, C) frames, fps) of a built-in clip or a retargeted BVH."""
+    skeleton = character_skeleton(character)
+    if bvh:
+        from skin_node.io.bvh import load_bvh
+        from skin_node.retarget import load_mapping, retarget_bvh
+        source = load_bvh(bvh)
+        spec = load_mapping(mapping or config_path(f"cmu_to_{character}.yaml"), skeleton, source)
+        names, frames, fps = retarget_bvh(source, skeleton, spec)
+        return Path(bvh).stem, list(names), np.asarray(frames), float(fps)
+    from skin_node import default_clip_name, make_clip
+    c = make_clip(clip or default_clip_name(character), skeleton)
+    return c.name, list(c.channel_names), np.asarray(c.frames), float(c.fps)
+
+
+class MocapPlayer(Node):
+    """Publishes one clip frame per timer tick; ``done`` completes at the end."""
+
+    def __init__(self, defaults: argparse.Namespace) -> None:
+        super().__init__("mocap_player")
+        p = {k: self.declare_parameter(k, v).value for k, v in vars(defaults).items()}
+        self.clip_name, names, self.frames, fps = load_motion(
+            p["character"], p["clip"], p["bvh"], p["mapping"])
+        if p["name_map"]:
+            # The map reads incoming -> channel; the player speaks the incoming names.
+            inverse = {ch: src for src, ch in load_name_map(p["name_map"]).items()}
+            names = [inverse.get(n, n) for n in names]
+        self.names, self.loop = names, p["loop"]
+        if p["rate"] <= 0:
+            raise ValueError(f"rate must be > 0, got {p['rate']}")
+        self.limit = p["frames"] if p["frames"] > 0 else (None if self.loop else len(self.frames))
+        self.sent = 0
+        self.done = Future()
+        self.pub = self.create_publisher(JointState, "joint_states", QOS_JOINT_STATES)
+        self.create_timer(1.0 / (fps * p["rate"]), self._tick)
+        self.get_logger().info(
+            f"playing '{self.clip_name}': {len(self.frames)} frames at {fps * p['rate']:.1f} Hz"
+            f"{', looping' if self.loop else ''}"
+            f"{f', {self.limit} frames' if self.limit else ''}")
+
+    def _tick(self) -> None:
+        if self.sent == 0 and self.pub.get_subscription_count() == 0:
+            # Frames sent before anyone listens are lost (volatile): start when heard.
+            self.get_logger().info("waiting for a subscriber on joint_states",
+                                   once=True)
+            return
+        if self.limit is not None and self.sent >= self.limit:
+            self.done.set_result(self.sent)
+            return
+        q = self.frames[self.sent % len(self.frames)]
+        self.pub.publish(channels_to_joint_state(self.names, q,
+                                                 self.get_clock().now().to_msg()))
+        self.sent += 1
+
+
+def _parse(argv: list[str]) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(prog="mocap_player", description=__doc__.splitlines()[0])
+    ap.add_argument("--character", default="humanoid", help="arm | humanoid | character file")
+    ap.add_argument("--clip", default="", help="built-in clip (default: the character's)")
+    ap.add_argument("--bvh", default="", help="BVH file to retarget and play instead")
+    ap.add_argument("--mapping", default="",
+                    help="retarget mapping YAML (default: config/cmu_to_<character>.yaml)")
+    ap.add_argument("--name-map", dest="name_map", default="",
+                    help="publish under the incoming names of this name map")
+    ap.add_argument("--rate", type=float, default=1.0, help="speed factor")
+    ap.add_argument("--frames", type=int, default=0, help="stop after N frames (0: clip end)")
+    ap.add_argument("--loop", action="store_true", help="repeat the clip")
+    return ap.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console script ``mocap_player``: 0 when done or interrupted, 2 on bad input."""
+    args_ros = sys.argv if argv is None else ["mocap_player", *argv]
+    defaults = _parse(rclpy.utilities.remove_ros_args(args_ros)[1:])
+    rclpy.init(args=args_ros)
+    try:
+        node = MocapPlayer(defaults)
+    except (ValueError, OSError, ParameterException) as e:
+        print(f"mocap_player: error: {e}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    try:
+        rclpy.spin_until_future_complete(node, node.done)
+        node.get_logger().info(f"sent {node.sent} frames")
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
