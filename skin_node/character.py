@@ -1,0 +1,141 @@
+"""The Character: rest surface, skeleton and rig, built or loaded once."""
+from __future__ import annotations
+
+import hashlib
+import inspect
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from .rigging.build import Rig, RigOptions, Steps, cache_dir, cached_rig
+from .skeleton import Skeleton
+
+#: Default tet counts: the paper's human has 51,110 tets; the arm prototype 12k.
+DEFAULT_TETS = {"arm": 12000, "humanoid": 52000}
+
+
+@dataclass
+class Character:
+    """A skinnable character.
+
+    Attributes
+    ----------
+    name : str
+    V : (n, 3) float
+        Rest surface vertices, metres.
+    F : (m, 3) int
+        Closed surface triangles, outward facing.
+    skeleton : Skeleton
+    rig : Rig
+        Tet mesh, embedding, weights and constraint rest values.
+    options : RigOptions
+    """
+
+    name: str
+    V: np.ndarray
+    F: np.ndarray
+    skeleton: Skeleton
+    rig: Rig
+    options: RigOptions
+
+    @property
+    def channel_names(self) -> list:
+        """Every JointState name this character accepts, in pose-vector order."""
+        return self.skeleton.channel_names
+
+    @property
+    def n_channels(self) -> int:
+        return self.skeleton.n_channels
+
+    def pose(self, **channels: float) -> np.ndarray:
+        """A pose vector from keyword channels, e.g. ``pose(elbow_rz=2.6)``."""
+        return self.skeleton.pose(**channels)
+
+
+def _builtin_mesh(name: str, surface_vertices: int, steps: Steps, use_cache: bool):
+    from .builtin import characters as chars
+    if name not in chars.BUILTIN_CHARACTERS:
+        raise ValueError(f"unknown built-in character '{name}' "
+                         f"(expected one of {sorted(chars.BUILTIN_CHARACTERS)} or a file path)")
+    make = chars.BUILTIN_CHARACTERS[name]
+    src = hashlib.sha1(inspect.getsource(chars).encode()).hexdigest()[:12]
+    path = cache_dir() / f"mesh-{name}-{surface_vertices}-{src}.npz"
+    if use_cache and path.exists():
+        try:
+            with np.load(path) as z:
+                V, F = z["V"], z["F"]
+            skel = _builtin_skeleton(make, surface_vertices)
+            steps(f"{name} mesh from cache")
+            return V, F, skel
+        except Exception:
+            pass
+    V, F, skel = make(surface_vertices=surface_vertices)
+    steps(f"{name} mesh: {len(V)} vertices, {len(F)} triangles")
+    if use_cache:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_suffix(".tmp.npz")
+            np.savez(tmp, V=V, F=F)
+            tmp.replace(path)
+        except OSError:
+            pass
+    return V, F, skel
+
+
+def _builtin_skeleton(make, surface_vertices: int) -> Skeleton:
+    # The skeleton does not depend on the density; generating the coarsest mesh is cheap.
+    return make(surface_vertices=2000)[2]
+
+
+def load_character(spec: str, surface_vertices: int | None = None, tet_count: int | None = None,
+                   options: RigOptions | None = None, cache: bool = True,
+                   progress: bool = True) -> Character:
+    """Build a built-in character or load one from a file, with its rig.
+
+    Parameters
+    ----------
+    spec : str
+        ``"arm"``, ``"humanoid"``, or a path to a character file.
+    surface_vertices : int, optional
+        Target surface vertex count of a built-in (its default when None or 0).
+    tet_count : int, optional
+        Target tet count (default :data:`DEFAULT_TETS`, or ``options.tet_count``).
+    options : RigOptions, optional
+    cache : bool
+        Read and write the on-disk cache (``$SKIN_NODE_CACHE`` or
+        ``~/.cache/skin_node``), so a restart skips the set-up.
+    progress : bool
+        Print set-up steps to stderr when set-up takes more than 2 s.
+
+    Raises
+    ------
+    ValueError
+        ``"<spec>: <what is wrong>"`` for an unknown name or a bad file.
+    """
+    steps = Steps(f"set-up of {spec}", enabled=progress)
+    spec = str(spec)
+    if spec in ("arm", "humanoid") or not (("/" in spec) or ("." in spec)):
+        from .builtin.characters import DEFAULT_SURFACE_VERTICES
+        if spec not in DEFAULT_SURFACE_VERTICES:
+            raise ValueError(f"{spec}: unknown character (expected 'arm', 'humanoid' "
+                             "or the path of a character file)")
+        n = int(surface_vertices or DEFAULT_SURFACE_VERTICES[spec])
+        if n < 100:
+            raise ValueError(f"{spec}: surface_vertices must be at least 100, got {n}")
+        V, F, skel = _builtin_mesh(spec, n, steps, cache)
+        name = spec
+        default_tets = DEFAULT_TETS[spec]
+    else:
+        from .io.character_file import load_character_file
+        V, F, skel = load_character_file(Path(spec))
+        name = Path(spec).stem
+        default_tets = max(6000, 2 * len(V))
+    opt = options or RigOptions()
+    opt = replace(opt, tet_count=int(tet_count or (opt.tet_count if options else default_tets)))
+    try:
+        rig = cached_rig(V, F, skel, opt, steps, use_cache=cache)
+    except ValueError as e:
+        raise ValueError(f"{spec}: {e}") from None
+    steps("ready")
+    return Character(name=name, V=V, F=F, skeleton=skel, rig=rig, options=opt)

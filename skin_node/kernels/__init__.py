@@ -1,0 +1,1 @@
+"""numba kernels: one function per constraint, and the loops that apply them."""

@@ -1,0 +1,191 @@
+"""Skin-through-skin detection with a spatial hash (numba)."""
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+
+@nb.njit(cache=True, inline="always")
+def _cell_hash(ix, iy, iz, size):
+    h = (ix * 73856093) ^ (iy * 19349663) ^ (iz * 83492791)
+    return h % size
+
+
+@nb.njit(cache=True)
+def _closest_on_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
+    """Closest point of triangle abc to p (Ericson, Real-Time Collision Detection 5.1.5)
+    and whether it lies in the face's interior."""
+    abx, aby, abz = bx - ax, by - ay, bz - az
+    acx, acy, acz = cx - ax, cy - ay, cz - az
+    apx, apy, apz = px - ax, py - ay, pz - az
+    d1 = abx * apx + aby * apy + abz * apz
+    d2 = acx * apx + acy * apy + acz * apz
+    if d1 <= 0.0 and d2 <= 0.0:
+        return ax, ay, az, False
+    bpx, bpy, bpz = px - bx, py - by, pz - bz
+    d3 = abx * bpx + aby * bpy + abz * bpz
+    d4 = acx * bpx + acy * bpy + acz * bpz
+    if d3 >= 0.0 and d4 <= d3:
+        return bx, by, bz, False
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        v = d1 / (d1 - d3)
+        return ax + v * abx, ay + v * aby, az + v * abz, False
+    cpx, cpy, cpz = px - cx, py - cy, pz - cz
+    d5 = abx * cpx + aby * cpy + abz * cpz
+    d6 = acx * cpx + acy * cpy + acz * cpz
+    if d6 >= 0.0 and d5 <= d6:
+        return cx, cy, cz, False
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        w = d2 / (d2 - d6)
+        return ax + w * acx, ay + w * acy, az + w * acz, False
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        return bx + w * (cx - bx), by + w * (cy - by), bz + w * (cz - bz), False
+    den = 1.0 / (va + vb + vc)
+    v = vb * den
+    w = vc * den
+    return ax + abx * v + acx * w, ay + aby * v + acy * w, az + abz * v + acz * w, True
+
+
+@nb.njit(cache=True)
+def _plane(X, F, f):
+    a, b, c = F[f, 0], F[f, 1], F[f, 2]
+    ux, uy, uz = X[b, 0] - X[a, 0], X[b, 1] - X[a, 1], X[b, 2] - X[a, 2]
+    vx, vy, vz = X[c, 0] - X[a, 0], X[c, 1] - X[a, 1], X[c, 2] - X[a, 2]
+    nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    L = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if L > 0.0:
+        nx, ny, nz = nx / L, ny / L, nz / L
+    gx = (X[a, 0] + X[b, 0] + X[c, 0]) / 3.0
+    gy = (X[a, 1] + X[b, 1] + X[c, 1]) / 3.0
+    gz = (X[a, 2] + X[b, 2] + X[c, 2]) / 3.0
+    return gx, gy, gz, nx, ny, nz
+
+
+@nb.njit(cache=True, inline="always")
+def _seg_dist(px, py, pz, A, B):
+    ex, ey, ez = B[0] - A[0], B[1] - A[1], B[2] - A[2]
+    qx, qy, qz = px - A[0], py - A[1], pz - A[2]
+    ee = ex * ex + ey * ey + ez * ez
+    t = 0.0
+    if ee > 0.0:
+        t = min(1.0, max(0.0, (qx * ex + qy * ey + qz * ez) / ee))
+    dx, dy, dz = qx - t * ex, qy - t * ey, qz - t * ez
+    return math.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+@nb.njit(cache=True)
+def crossed_vertices(X, X0, F, verts, vside, tris, tside, segA, segB, R, rest_sep, rest_tol,
+                     cell):
+    """The paper's sign test for skin passing through skin, made unambiguous.
+
+    A joint region has two sides, 0 (parent bone) and 1 (child bone); each
+    side's bone is the posed segment ``segA[s]``-``segB[s]`` and ``R[s]`` the
+    largest rest distance of that side's skin from it. A vertex ``p`` of side
+    ``s`` can only be inside the other side's flesh when it is within ``R[o]``
+    of bone ``o`` (a cheap filter that leaves few candidates). For those, take
+    the nearest triangle of side ``o`` (at least ``rest_sep`` from ``p`` at rest,
+    so no vertex is tested against its own neighbourhood); with ``c`` its centre
+    and ``n`` its unit normal, ``F = (p - c) . n``. The vertex has passed
+    through the skin when its closest point is inside that face and ``F`` is
+    negative now while it was not at rest (``F0 > -rest_tol``: a vertex of a
+    concave rest fold may already sit behind a far plane). A candidate with no
+    skin of side ``o`` within ``cell`` but deep in its flesh (closer than
+    ``R[o] / 2`` to bone ``o``) has crossed too.
+
+    Returns
+    -------
+    (len(verts),) int: the crossed triangle of each vertex, -2 for a deep
+    vertex, or -1.
+    """
+    nv = verts.shape[0]
+    out = -np.ones(nv, dtype=np.int64)
+    nt = tris.shape[0]
+    if nt == 0 or nv == 0:
+        return out
+    size = 1
+    while size < 2 * nt:
+        size *= 2
+    h = cell
+    counts = np.zeros(size + 1, dtype=np.int64)
+    keys = np.empty(nt, dtype=np.int64)
+    for a in range(nt):
+        gx, gy, gz, _, _, _ = _plane(X, F, tris[a])
+        k = _cell_hash(int(math.floor(gx / h)), int(math.floor(gy / h)),
+                       int(math.floor(gz / h)), size)
+        keys[a] = k
+        counts[k + 1] += 1
+    for k in range(size):
+        counts[k + 1] += counts[k]
+    fill = counts[:-1].copy()
+    items = np.empty(nt, dtype=np.int64)
+    iside = np.empty(nt, dtype=np.int64)
+    for a in range(nt):
+        items[fill[keys[a]]] = tris[a]
+        iside[fill[keys[a]]] = tside[a]
+        fill[keys[a]] += 1
+    # Per item: centre now, bounding radius, centre at rest (so the pair loop
+    # rejects most triangles before the exact closest-point test).
+    geo = np.empty((nt, 7))
+    for b in range(nt):
+        f = items[b]
+        gx, gy, gz, _, _, _ = _plane(X, F, f)
+        rr = 0.0
+        for e in range(3):
+            v = F[f, e]
+            rr = max(rr, (X[v, 0] - gx) ** 2 + (X[v, 1] - gy) ** 2 + (X[v, 2] - gz) ** 2)
+        g0, g1, g2, _, _, _ = _plane(X0, F, f)
+        geo[b, 0], geo[b, 1], geo[b, 2], geo[b, 3] = gx, gy, gz, math.sqrt(rr)
+        geo[b, 4], geo[b, 5], geo[b, 6] = g0, g1, g2
+    for a in range(nv):
+        i = verts[a]
+        o = 1 - vside[a]
+        px, py, pz = X[i, 0], X[i, 1], X[i, 2]
+        dbone = _seg_dist(px, py, pz, segA[o], segB[o])
+        if dbone > R[o]:
+            continue
+        ix, iy, iz = int(math.floor(px / h)), int(math.floor(py / h)), int(math.floor(pz / h))
+        best, best_d, best_in = -1, h * h, False
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                for dz in range(-1, 2):
+                    k = _cell_hash(ix + dx, iy + dy, iz + dz, size)
+                    for b in range(counts[k], counts[k + 1]):
+                        if iside[b] != o:
+                            continue
+                        cd = math.sqrt((px - geo[b, 0]) ** 2 + (py - geo[b, 1]) ** 2
+                                       + (pz - geo[b, 2]) ** 2) - geo[b, 3]
+                        if cd > 0.0 and cd * cd > best_d:
+                            continue
+                        rd = ((X0[i, 0] - geo[b, 4]) ** 2 + (X0[i, 1] - geo[b, 5]) ** 2
+                              + (X0[i, 2] - geo[b, 6]) ** 2)
+                        if rd < rest_sep * rest_sep:
+                            continue
+                        f = items[b]
+                        a0, a1, a2 = F[f, 0], F[f, 1], F[f, 2]
+                        if a0 == i or a1 == i or a2 == i:
+                            continue
+                        qx, qy, qz, inside = _closest_on_triangle(
+                            px, py, pz, X[a0, 0], X[a0, 1], X[a0, 2], X[a1, 0], X[a1, 1],
+                            X[a1, 2], X[a2, 0], X[a2, 1], X[a2, 2])
+                        d = (px - qx) ** 2 + (py - qy) ** 2 + (pz - qz) ** 2
+                        if d < best_d:
+                            best, best_d, best_in = f, d, inside
+        if best < 0:
+            if dbone < 0.5 * R[o]:
+                out[a] = -2
+            continue
+        if not best_in:
+            continue
+        gx, gy, gz, nx, ny, nz = _plane(X, F, best)
+        Fnow = (px - gx) * nx + (py - gy) * ny + (pz - gz) * nz
+        g0, g1, g2, m0, m1, m2 = _plane(X0, F, best)
+        Frest = (X0[i, 0] - g0) * m0 + (X0[i, 1] - g1) * m1 + (X0[i, 2] - g2) * m2
+        if Fnow < 0.0 and Frest > -rest_tol:
+            out[a] = best
+    return out

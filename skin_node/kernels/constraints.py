@@ -1,0 +1,229 @@
+"""One stateless numba function per constraint, in the shape of XPBD.
+
+Each function reads positions ``X`` at the constraint's vertex indices, the
+inverse masses ``w``, the rest value, a PBD stiffness ``k`` in [0, 1], an XPBD
+compliance ``alpha`` (already divided by the squared substep) and the
+constraint's Lagrange multiplier ``lam``; it writes the position corrections
+into the scratch array ``dp`` (rows in the order of the constraint's
+vertices) and returns the multiplier increment ``dlam``. It never writes
+``X``: the solver loops in :mod:`skin_node.kernels.solver` apply ``dp``.
+
+For a constraint ``C(p) = 0`` (Müller et al. 2007; Macklin et al. 2016):
+
+    dlam  = k * (-C - alpha * lam) / (sum_j w_j |grad_j C|^2 + alpha)
+    dp_i  = w_i * dlam * grad_i C
+
+With ``alpha = 0`` this is the paper's PBD step scaled by stiffness ``k``;
+with ``k = 1`` and ``alpha > 0`` it is XPBD, whose converged result no longer
+depends on the iteration count. A degenerate gradient returns ``dlam = 0``.
+"""
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+_EPS = 1e-12
+
+
+@nb.njit(cache=True, inline="always")
+def _step(C, wsum, k, alpha, lam):
+    den = wsum + alpha
+    if den < _EPS:
+        return 0.0
+    return k * (-C - alpha * lam) / den
+
+
+@nb.njit(cache=True)
+def stretch_constraint(X, i0, i1, w0, w1, rest, k, alpha, lam, dp):
+    """Distance between two vertices: ``C = |p1 - p2| - d``.
+
+    Gradient: ``grad_1 C = n``, ``grad_2 C = -n`` with ``n = (p1 - p2) / |p1 - p2|``.
+    """
+    dx = X[i0, 0] - X[i1, 0]
+    dy = X[i0, 1] - X[i1, 1]
+    dz = X[i0, 2] - X[i1, 2]
+    L = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if L < _EPS:
+        dp[0, :] = 0.0
+        dp[1, :] = 0.0
+        return 0.0
+    nx, ny, nz = dx / L, dy / L, dz / L
+    dlam = _step(L - rest, w0 + w1, k, alpha, lam)
+    dp[0, 0] = w0 * dlam * nx
+    dp[0, 1] = w0 * dlam * ny
+    dp[0, 2] = w0 * dlam * nz
+    dp[1, 0] = -w1 * dlam * nx
+    dp[1, 1] = -w1 * dlam * ny
+    dp[1, 2] = -w1 * dlam * nz
+    return dlam
+
+
+@nb.njit(cache=True, inline="always")
+def _cross(ax, ay, az, bx, by, bz):
+    return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+
+
+@nb.njit(cache=True)
+def tet_volume(X, i1, i2, i3, i4):
+    """Signed volume ``(1/6) [(p1 - p2) x (p1 - p3)] . (p1 - p4)`` of one tet."""
+    ax, ay, az = X[i1, 0] - X[i2, 0], X[i1, 1] - X[i2, 1], X[i1, 2] - X[i2, 2]
+    bx, by, bz = X[i1, 0] - X[i3, 0], X[i1, 1] - X[i3, 1], X[i1, 2] - X[i3, 2]
+    cx, cy, cz = X[i1, 0] - X[i4, 0], X[i1, 1] - X[i4, 1], X[i1, 2] - X[i4, 2]
+    ux, uy, uz = _cross(ax, ay, az, bx, by, bz)
+    return (ux * cx + uy * cy + uz * cz) / 6.0
+
+
+@nb.njit(cache=True)
+def volume_constraint(X, t, w, rest, k, alpha, lam, dp):
+    """Tet volume: ``C = (1/6) [(p1 - p2) x (p1 - p3)] . (p1 - p4) - V0``.
+
+    With ``a = p1 - p2, b = p1 - p3, c = p1 - p4``: ``grad_2 C = -(b x c)/6``,
+    ``grad_3 C = -(c x a)/6``, ``grad_4 C = -(a x b)/6`` and
+    ``grad_1 C = -(grad_2 + grad_3 + grad_4)``. ``t`` holds the 4 indices.
+    The signed form pushes an inverted tet back through zero towards ``V0``.
+    """
+    i1, i2, i3, i4 = t[0], t[1], t[2], t[3]
+    ax, ay, az = X[i1, 0] - X[i2, 0], X[i1, 1] - X[i2, 1], X[i1, 2] - X[i2, 2]
+    bx, by, bz = X[i1, 0] - X[i3, 0], X[i1, 1] - X[i3, 1], X[i1, 2] - X[i3, 2]
+    cx, cy, cz = X[i1, 0] - X[i4, 0], X[i1, 1] - X[i4, 1], X[i1, 2] - X[i4, 2]
+    g2x, g2y, g2z = _cross(bx, by, bz, cx, cy, cz)
+    g3x, g3y, g3z = _cross(cx, cy, cz, ax, ay, az)
+    g4x, g4y, g4z = _cross(ax, ay, az, bx, by, bz)
+    vol = (g4x * cx + g4y * cy + g4z * cz) / 6.0
+    s = -1.0 / 6.0
+    g2x, g2y, g2z = s * g2x, s * g2y, s * g2z
+    g3x, g3y, g3z = s * g3x, s * g3y, s * g3z
+    g4x, g4y, g4z = s * g4x, s * g4y, s * g4z
+    g1x, g1y, g1z = -(g2x + g3x + g4x), -(g2y + g3y + g4y), -(g2z + g3z + g4z)
+    w1, w2, w3, w4 = w[i1], w[i2], w[i3], w[i4]
+    wsum = (w1 * (g1x * g1x + g1y * g1y + g1z * g1z) + w2 * (g2x * g2x + g2y * g2y + g2z * g2z)
+            + w3 * (g3x * g3x + g3y * g3y + g3z * g3z) + w4 * (g4x * g4x + g4y * g4y + g4z * g4z))
+    dlam = _step(vol - rest, wsum, k, alpha, lam)
+    dp[0, 0], dp[0, 1], dp[0, 2] = w1 * dlam * g1x, w1 * dlam * g1y, w1 * dlam * g1z
+    dp[1, 0], dp[1, 1], dp[1, 2] = w2 * dlam * g2x, w2 * dlam * g2y, w2 * dlam * g2z
+    dp[2, 0], dp[2, 1], dp[2, 2] = w3 * dlam * g3x, w3 * dlam * g3y, w3 * dlam * g3z
+    dp[3, 0], dp[3, 1], dp[3, 2] = w4 * dlam * g4x, w4 * dlam * g4y, w4 * dlam * g4z
+    return dlam
+
+
+@nb.njit(cache=True)
+def bind_constraint(X, i, w, ax, ay, az, bx, by, bz, rest, k, alpha, lam, dp):
+    """Distance to the posed bone: ``C = |p - p'| - d``.
+
+    ``p'`` is the projection of ``p`` on the bone segment ``a``-``b`` (posed
+    with its joint, so it has no inverse mass), ``d`` the rest distance.
+    Gradient ``grad_p C = (p - p') / |p - p'|``.
+    """
+    ex, ey, ez = bx - ax, by - ay, bz - az
+    px, py, pz = X[i, 0] - ax, X[i, 1] - ay, X[i, 2] - az
+    ee = ex * ex + ey * ey + ez * ez
+    s = 0.0
+    if ee > _EPS:
+        s = (px * ex + py * ey + pz * ez) / ee
+        s = min(1.0, max(0.0, s))
+    dx, dy, dz = px - s * ex, py - s * ey, pz - s * ez
+    L = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if L < _EPS:
+        dp[0, :] = 0.0
+        return 0.0
+    wi = w[i]
+    dlam = _step(L - rest, wi, k, alpha, lam)
+    dp[0, 0] = wi * dlam * dx / L
+    dp[0, 1] = wi * dlam * dy / L
+    dp[0, 2] = wi * dlam * dz / L
+    return dlam
+
+
+@nb.njit(cache=True)
+def energy_value(X, t, m, ks, rest):
+    """The energy constraint's value ``C = 1/2 sum_i k_i (|p_i - p0| - d_i)^2``."""
+    M = m[t[0]] + m[t[1]] + m[t[2]] + m[t[3]]
+    cx = cy = cz = 0.0
+    for a in range(4):
+        cx += m[t[a]] * X[t[a], 0]
+        cy += m[t[a]] * X[t[a], 1]
+        cz += m[t[a]] * X[t[a], 2]
+    cx, cy, cz = cx / M, cy / M, cz / M
+    C = 0.0
+    for a in range(4):
+        dx, dy, dz = X[t[a], 0] - cx, X[t[a], 1] - cy, X[t[a], 2] - cz
+        e = math.sqrt(dx * dx + dy * dy + dz * dz) - rest[a]
+        C += 0.5 * ks[a] * e * e
+    return C
+
+
+@nb.njit(cache=True)
+def energy_constraint(X, t, w, m, ks, rest, k, alpha, lam, dp):
+    """Energy conservation (Chen & Pan 2017): springs from each vertex of a tet
+    to its mass-weighted centroid ``p0 = sum m_i p_i / sum m_i``::
+
+        C = 1/2 sum_i k_i (|p_i - p0| - d_i)^2
+
+    The paper's gradient ``g_i = k_i (|p_i - p0| - d_i) (p_i - p0) / |p_i - p0|``
+    holds ``p0`` fixed. ``p0`` moves with every ``p_i`` (``dp0/dp_i = m_i / M``),
+    so the full gradient is ``grad_i C = g_i - (m_i / M) sum_l g_l``; its terms
+    sum to zero, which is what keeps the correction from moving the tet's
+    centre of mass. ``C >= 0`` has a double root, so one projection halves it.
+    ``m`` are the masses, ``ks`` the four spring constants, ``rest`` the ``d_i``.
+    """
+    M = m[t[0]] + m[t[1]] + m[t[2]] + m[t[3]]
+    cx = cy = cz = 0.0
+    for a in range(4):
+        cx += m[t[a]] * X[t[a], 0]
+        cy += m[t[a]] * X[t[a], 1]
+        cz += m[t[a]] * X[t[a], 2]
+    cx, cy, cz = cx / M, cy / M, cz / M
+    C = 0.0
+    sx = sy = sz = 0.0
+    for a in range(4):
+        dx, dy, dz = X[t[a], 0] - cx, X[t[a], 1] - cy, X[t[a], 2] - cz
+        L = math.sqrt(dx * dx + dy * dy + dz * dz)
+        e = L - rest[a]
+        C += 0.5 * ks[a] * e * e
+        if L > _EPS:
+            f = ks[a] * e / L
+            dp[a, 0], dp[a, 1], dp[a, 2] = f * dx, f * dy, f * dz
+        else:
+            dp[a, 0] = dp[a, 1] = dp[a, 2] = 0.0
+        sx += dp[a, 0]
+        sy += dp[a, 1]
+        sz += dp[a, 2]
+    wsum = 0.0
+    for a in range(4):
+        r = m[t[a]] / M
+        dp[a, 0] -= r * sx
+        dp[a, 1] -= r * sy
+        dp[a, 2] -= r * sz
+        wsum += w[t[a]] * (dp[a, 0] ** 2 + dp[a, 1] ** 2 + dp[a, 2] ** 2)
+    dlam = _step(C, wsum, k, alpha, lam)
+    for a in range(4):
+        wa = w[t[a]] * dlam
+        dp[a, 0] *= wa
+        dp[a, 1] *= wa
+        dp[a, 2] *= wa
+    return dlam
+
+
+def scratch() -> np.ndarray:
+    """A (4, 3) correction buffer for the constraint functions."""
+    return np.zeros((4, 3))
+
+
+@nb.njit(cache=True)
+def contact_constraint(X, i, w, cx, cy, cz, nx, ny, nz, dp):
+    """One-sided contact with a plane: ``C = n . (p - c) >= 0``.
+
+    Past the paper: where two limbs fold onto each other, each tet vertex of
+    the fold must stay on its own side of the contact plane through the joint
+    (``n`` unit, pointing to the vertex's side). Enforced inside the solve, the
+    volume constraints then push the squeezed flesh outwards instead of letting
+    the post-process flatten it away. Returns ``C`` (negative when projected).
+    """
+    C = nx * (X[i, 0] - cx) + ny * (X[i, 1] - cy) + nz * (X[i, 2] - cz)
+    if C >= 0.0 or w[i] == 0.0:
+        dp[0, 0] = dp[0, 1] = dp[0, 2] = 0.0
+        return 0.0
+    dp[0, 0], dp[0, 1], dp[0, 2] = -C * nx, -C * ny, -C * nz
+    return C

@@ -1,0 +1,224 @@
+"""Loops that apply the constraint functions over index arrays.
+
+The Gauss-Seidel sweep visits constraints in the order of the active index
+arrays. When those arrays are sorted by graph colour (no two constraints of a
+colour share a vertex), each colour's range can run in parallel without
+races: ``colours`` holds the range boundaries per constraint type, and the
+parallel driver splits each colour over the threads. With a single colour
+spanning everything the driver is plain sequential Gauss-Seidel.
+"""
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from .constraints import (bind_constraint, contact_constraint, energy_constraint,
+                          stretch_constraint, volume_constraint)
+
+
+@nb.njit(cache=True)
+def _stretch_range(X, w, E, rest, lam, idx, lo, hi, k, alpha, dp):
+    for a in range(lo, hi):
+        c = idx[a]
+        i0, i1 = E[c, 0], E[c, 1]
+        dlam = stretch_constraint(X, i0, i1, w[i0], w[i1], rest[c], k, alpha, lam[c], dp)
+        lam[c] += dlam
+        for d in range(3):
+            X[i0, d] += dp[0, d]
+            X[i1, d] += dp[1, d]
+
+
+@nb.njit(cache=True)
+def _volume_range(X, w, T, rest, lam, idx, lo, hi, k, alpha, dp):
+    for a in range(lo, hi):
+        c = idx[a]
+        t = T[c]
+        dlam = volume_constraint(X, t, w, rest[c], k, alpha, lam[c], dp)
+        lam[c] += dlam
+        for b in range(4):
+            for d in range(3):
+                X[t[b], d] += dp[b, d]
+
+
+@nb.njit(cache=True)
+def _energy_range(X, w, m, T, ks, rest, lam, idx, lo, hi, k, alpha, dp):
+    for a in range(lo, hi):
+        c = idx[a]
+        t = T[c]
+        dlam = energy_constraint(X, t, w, m, ks, rest[c], k, alpha, lam[c], dp)
+        lam[c] += dlam
+        for b in range(4):
+            for d in range(3):
+                X[t[b], d] += dp[b, d]
+
+
+@nb.njit(cache=True)
+def _bind_range(X, w, seg, A, B, rest, lam, idx, lo, hi, k, alpha, dp):
+    for a in range(lo, hi):
+        i = idx[a]
+        s = seg[i]
+        dlam = bind_constraint(X, i, w, A[s, 0], A[s, 1], A[s, 2], B[s, 0], B[s, 1], B[s, 2],
+                               rest[i], k, alpha, lam[i], dp)
+        lam[i] += dlam
+        for d in range(3):
+            X[i, d] += dp[0, d]
+
+
+@nb.njit(cache=True)
+def contact_sweep(X, w, idx, planes, plane_of):
+    """Project each vertex ``idx[a]`` to the positive side of its plane
+    ``planes[plane_of[a]]`` (rows: centre xyz, unit normal xyz)."""
+    dp = np.zeros((4, 3))
+    for a in range(idx.shape[0]):
+        i = idx[a]
+        P = planes[plane_of[a]]
+        contact_constraint(X, i, w, P[0], P[1], P[2], P[3], P[4], P[5], dp)
+        for d in range(3):
+            X[i, d] += dp[0, d]
+
+
+@nb.njit(cache=True, parallel=True)
+def _parallel(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha,
+              nchunk):
+    # One colour per (bounds[c], bounds[c+1]) range; chunks of a colour run in parallel.
+    for c in range(bounds.shape[0] - 1):
+        lo, hi = bounds[c], bounds[c + 1]
+        n = hi - lo
+        if n <= 0:
+            continue
+        nch = nchunk if n >= 64 * nchunk else 1
+        for h in nb.prange(nch):
+            dp = np.zeros((4, 3))
+            a0 = lo + (n * h) // nch
+            a1 = lo + (n * (h + 1)) // nch
+            if kind == 0:
+                _stretch_range(X, w, E, rest, lam, idx, a0, a1, k, alpha, dp)
+            elif kind == 1:
+                _volume_range(X, w, T, rest, lam, idx, a0, a1, k, alpha, dp)
+            elif kind == 2:
+                _energy_range(X, w, m, T, ks, erest, lam, idx, a0, a1, k, alpha, dp)
+            else:
+                _bind_range(X, w, seg, A, B, rest, lam, idx, a0, a1, k, alpha, dp)
+
+
+@nb.njit(cache=True)
+def _sequential(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha):
+    dp = np.zeros((4, 3))
+    lo, hi = bounds[0], bounds[bounds.shape[0] - 1]
+    if kind == 0:
+        _stretch_range(X, w, E, rest, lam, idx, lo, hi, k, alpha, dp)
+    elif kind == 1:
+        _volume_range(X, w, T, rest, lam, idx, lo, hi, k, alpha, dp)
+    elif kind == 2:
+        _energy_range(X, w, m, T, ks, erest, lam, idx, lo, hi, k, alpha, dp)
+    else:
+        _bind_range(X, w, seg, A, B, rest, lam, idx, lo, hi, k, alpha, dp)
+
+
+def sweep(kind: int, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha,
+          threads: int) -> None:
+    """One Gauss-Seidel sweep of one constraint type (0 stretch, 1 volume,
+    2 energy, 3 bind) over ``idx``; parallel over colours when ``threads > 1``.
+
+    ``rest`` (1-D) holds the rest values of stretch, volume or bind constraints,
+    ``erest`` (t,4) the energy springs' rest lengths."""
+    if threads > 1 and bounds.shape[0] > 2:
+        _parallel(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha,
+                  threads)
+    else:
+        _sequential(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha)
+
+
+# --------------------------------------------------------------------------- skinning
+@nb.njit(cache=True, parallel=True)
+def lbs(V, Widx, Wval, M, out):
+    """Linear blend skinning ``v' = sum_j w_j M_j v`` with sparse weights.
+
+    ``V`` (n,3) rest points, ``Widx``/``Wval`` (n,K) bone indices and weights
+    (zero-padded), ``M`` (J,4,4) skinning matrices, ``out`` (n,3).
+    """
+    n, K = Widx.shape
+    for i in nb.prange(n):
+        x, y, z = V[i, 0], V[i, 1], V[i, 2]
+        ox = oy = oz = 0.0
+        for a in range(K):
+            wt = Wval[i, a]
+            if wt == 0.0:
+                continue
+            Mj = M[Widx[i, a]]
+            ox += wt * (Mj[0, 0] * x + Mj[0, 1] * y + Mj[0, 2] * z + Mj[0, 3])
+            oy += wt * (Mj[1, 0] * x + Mj[1, 1] * y + Mj[1, 2] * z + Mj[1, 3])
+            oz += wt * (Mj[2, 0] * x + Mj[2, 1] * y + Mj[2, 2] * z + Mj[2, 3])
+        out[i, 0], out[i, 1], out[i, 2] = ox, oy, oz
+
+
+@nb.njit(cache=True, parallel=True)
+def dqs(V, Widx, Wval, Q, out):
+    """Dual-quaternion skinning (Kavan et al. 2007) with sparse weights.
+
+    ``Q`` (J,8): per joint the unit real part (w,x,y,z) and dual part of its
+    skinning transform. Quaternions are flipped into the first influence's
+    hemisphere before blending, so blends never take the long way round.
+    """
+    n, K = Widx.shape
+    for i in nb.prange(n):
+        b = np.zeros(8)
+        q0 = Q[Widx[i, 0]]
+        for a in range(K):
+            wt = Wval[i, a]
+            if wt == 0.0:
+                continue
+            q = Q[Widx[i, a]]
+            if q[0] * q0[0] + q[1] * q0[1] + q[2] * q0[2] + q[3] * q0[3] < 0.0:
+                wt = -wt
+            for c in range(8):
+                b[c] += wt * q[c]
+        nr = np.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2] + b[3] * b[3])
+        w0, x0, y0, z0 = b[0] / nr, b[1] / nr, b[2] / nr, b[3] / nr
+        we, xe, ye, ze = b[4] / nr, b[5] / nr, b[6] / nr, b[7] / nr
+        # rotation of v by the real part
+        vx, vy, vz = V[i, 0], V[i, 1], V[i, 2]
+        tx = 2.0 * (y0 * vz - z0 * vy)
+        ty = 2.0 * (z0 * vx - x0 * vz)
+        tz = 2.0 * (x0 * vy - y0 * vx)
+        rx = vx + w0 * tx + (y0 * tz - z0 * ty)
+        ry = vy + w0 * ty + (z0 * tx - x0 * tz)
+        rz = vz + w0 * tz + (x0 * ty - y0 * tx)
+        # translation t = 2 * dual * conj(real)
+        px = 2.0 * (-we * x0 + xe * w0 - ye * z0 + ze * y0)
+        py = 2.0 * (-we * y0 + ye * w0 - ze * x0 + xe * z0)
+        pz = 2.0 * (-we * z0 + ze * w0 - xe * y0 + ye * x0)
+        out[i, 0], out[i, 1], out[i, 2] = rx + px, ry + py, rz + pz
+
+
+@nb.njit(cache=True, parallel=True)
+def embed_update(base, X, Xbase, Etet, Ebary, out):
+    """Surface = its own stage-1 result plus the barycentric interpolation of
+    the tet mesh's correction: ``out_i = base_i + sum_a b_ia (X - Xbase)[t_ia]``.
+    Surface detail finer than the tets is therefore kept."""
+    n = base.shape[0]
+    for i in nb.prange(n):
+        for d in range(3):
+            s = base[i, d]
+            for a in range(4):
+                v = Etet[i, a]
+                s += Ebary[i, a] * (X[v, d] - Xbase[v, d])
+            out[i, d] = s
+
+
+@nb.njit(cache=True)
+def laplacian_smooth(X, verts, ptr, nbr, k, out):
+    """Jacobi Laplacian smoothing of ``verts`` only: ``p <- (1-k) p + k mean(one ring)``.
+
+    ``ptr``/``nbr`` is the one-ring adjacency in CSR form; ``out`` must start
+    as a copy of ``X`` (other vertices are left as they are)."""
+    for a in range(verts.shape[0]):
+        i = verts[a]
+        lo, hi = ptr[i], ptr[i + 1]
+        if hi == lo:
+            continue
+        for d in range(3):
+            s = 0.0
+            for b in range(lo, hi):
+                s += X[nbr[b], d]
+            out[i, d] = (1.0 - k) * X[i, d] + k * s / (hi - lo)

@@ -1,0 +1,224 @@
+"""A pipeline is a list of stages built from names; it deforms poses and times
+every stage. LBS-only, DQS, the paper's method and our default are the same
+code path with different lists and parameters, so they benchmark side by side."""
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .stages.base import Frame, Stage
+from .stages.collision import Collision
+from .stages.pbd import CONSTRAINTS, PBD
+from .stages.skinning import DQS, LBS
+from .stages.smooth import Smooth
+
+STAGES = {s.name: s for s in (LBS, DQS, PBD, Collision, Smooth)}
+STAGE_NAMES = tuple(STAGES)
+
+#: Our default: DQS start (no candy wrapper), extended PBD on the bent joints'
+#: zones, the paper's self-collision and smoothing.
+DEFAULT_STAGES = ("dqs", "pbd", "collision", "smooth")
+
+#: Named stage lists with the parameters that make them what they are.
+PRESETS = {
+    "lbs": (("lbs",), {}),
+    "dqs": (("dqs",), {}),
+    # Abu Rumman & Fratarcangeli 2015: PBD without the energy constraint.
+    "pbs": (("lbs", "pbd"), {"solver": "pbd", "constraints": ["stretch", "volume", "bind"],
+                             "active_regions": False}),
+    # Chen & Pan 2017 as published: LBS start, plain PBD, its four constraints.
+    "paper": (("lbs", "pbd", "collision", "smooth"),
+              {"solver": "pbd", "active_regions": False, "collision_halfspace": False,
+               "constraints": ["stretch", "volume", "bind", "energy"]}),
+    "default": (DEFAULT_STAGES, {}),
+}
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """A pipeline parameter: type, default, range and a description."""
+
+    type: type
+    default: object
+    min: float | None = None
+    max: float | None = None
+    description: str = ""
+    choices: tuple = ()
+
+    def check(self, name: str, value):
+        if self.type is bool:
+            if not isinstance(value, (bool, np.bool_)):
+                raise ValueError(f"{name} must be a bool, got {value!r}")
+            return bool(value)
+        if self.type is list:
+            if isinstance(value, str) or not all(isinstance(v, str) for v in value):
+                raise ValueError(f"{name} must be a list of strings, got {value!r}")
+            bad = [v for v in value if self.choices and v not in self.choices]
+            if bad:
+                raise ValueError(f"{name}: unknown {bad}, expected some of {list(self.choices)}")
+            return list(value)
+        if self.type is str:
+            if not isinstance(value, str) or (self.choices and value not in self.choices):
+                raise ValueError(f"{name} must be one of {list(self.choices)}, got {value!r}")
+            return value
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+            raise ValueError(f"{name} must be a number, got {value!r}")
+        if self.type is int and int(value) != value:
+            raise ValueError(f"{name} must be an integer, got {value!r}")
+        value = self.type(value)
+        if not np.isfinite(value) or (self.min is not None and value < self.min) or \
+                (self.max is not None and value > self.max):
+            raise ValueError(f"{name} = {value} is outside [{self.min}, {self.max}]")
+        return value
+
+
+PIPELINE_PARAMS = {
+    "iterations": ParamSpec(int, 5, 0, 200, "Gauss-Seidel iterations of the PBD solve per frame"),
+    "stiffness": ParamSpec(float, 0.5, 0.0, 1.0,
+                           "energy-conservation spring constant k (the paper's 0.5)"),
+    "solver": ParamSpec(str, "xpbd", description="'pbd' (stiffness scales each step, the paper) "
+                        "or 'xpbd' (compliance; result independent of the iteration count)",
+                        choices=("pbd", "xpbd")),
+    "constraints": ParamSpec(list, ["stretch", "volume", "bind", "energy", "contact"],
+                             description="constraint types solved, in this order",
+                             choices=tuple(CONSTRAINTS)),
+    "stretch_stiffness": ParamSpec(float, 1.0, 0.0, 1.0, "PBD stiffness of tet edges"),
+    "volume_stiffness": ParamSpec(float, 1.0, 0.0, 1.0, "PBD stiffness of tet volumes"),
+    "bind_stiffness": ParamSpec(float, 0.5, 0.0, 1.0, "PBD stiffness of bone bindings"),
+    "stretch_compliance": ParamSpec(float, 0.0, 0.0, 1e6, "XPBD compliance of tet edges (m/unit)"),
+    "volume_compliance": ParamSpec(float, 0.0, 0.0, 1e6, "XPBD compliance of tet volumes"),
+    "bind_compliance": ParamSpec(float, 0.0, 0.0, 1e6, "XPBD compliance of bone bindings"),
+    "energy_compliance": ParamSpec(float, 0.0, 0.0, 1e6, "XPBD compliance of energy springs"),
+    "contact_angle": ParamSpec(float, 1.0, 0.0, 3.2,
+                               "joints bent past this (rad) get a contact plane in the solve"),
+    "tolerance": ParamSpec(float, 0.0, 0.0, 1.0,
+                           "stop iterating once no vertex moved more than this (m); 0 = never"),
+    "active_regions": ParamSpec(bool, True, description="simulate only the zones of bent joints"),
+    "active_threshold": ParamSpec(float, 0.01, 0.0, 3.2,
+                                  "a joint counts as bent above this rotation (rad)"),
+    "threads": ParamSpec(int, 1, 1, 64, "threads of the colour-parallel solve (1 = sequential)"),
+    "self_collision": ParamSpec(bool, True, description="run the collision stage"),
+    "collision_passes": ParamSpec(int, 3, 1, 20, "detect-and-project passes per joint"),
+    "collision_halfspace": ParamSpec(bool, True, description="also project every vertex of the "
+                                     "interpenetration zone on the wrong side of the plane"),
+    "smoothing": ParamSpec(float, 0.3, 0.0, 1.0, "Laplacian smoothing strength k"),
+    "smoothing_iterations": ParamSpec(int, 1, 0, 50, "Laplacian smoothing passes"),
+}
+
+
+def default_params() -> dict:
+    return {k: (list(s.default) if s.type is list else s.default)
+            for k, s in PIPELINE_PARAMS.items()}
+
+
+class Pipeline:
+    """Stages built from names, run in order on every pose.
+
+    Parameters
+    ----------
+    character : Character
+    stages : sequence of str
+        Stage names from :data:`STAGE_NAMES`; the first must be a skinning stage
+        (``lbs`` or ``dqs``), and only the first.
+    **params
+        Any of :data:`PIPELINE_PARAMS`.
+
+    Examples
+    --------
+    >>> ch = load_character("arm")
+    >>> pipe = Pipeline(ch, ["dqs", "pbd", "collision", "smooth"], iterations=5)
+    >>> V = pipe.deform(ch.pose(elbow_rz=2.6))
+    >>> pipe.timings          # ms per stage of the last frame
+    """
+
+    def __init__(self, character, stages=DEFAULT_STAGES, **params) -> None:
+        stages = list(stages)
+        bad = [s for s in stages if s not in STAGES]
+        if bad:
+            raise ValueError(f"unknown stage(s) {bad}; stages are {list(STAGE_NAMES)}")
+        if not stages or not STAGES[stages[0]].skinning:
+            raise ValueError(f"the first stage must be 'lbs' or 'dqs', got {stages[:1]}")
+        if any(STAGES[s].skinning for s in stages[1:]):
+            raise ValueError(f"only the first stage may skin, got {stages}")
+        self.character = character
+        self.params = default_params()
+        self.set_params(**params)
+        self.stage_names = stages
+        self.stages: list[Stage] = [STAGES[s](character, self.params) for s in stages]
+        skel = character.skeleton
+        self._seg_joint, self._segA, self._segB = skel.bone_segments()
+        n, k = len(character.V), len(character.rig.TV)
+        self._buf = [np.empty((n, 3)), np.empty((k, 3)), np.empty((n, 3)), np.empty((k, 3))]
+        self.timings: dict = {}
+        self.counts: dict = {}
+
+    @classmethod
+    def preset(cls, character, name: str, **params) -> "Pipeline":
+        """A pipeline from :data:`PRESETS` (``lbs``, ``dqs``, ``pbs``, ``paper``, ``default``)."""
+        if name not in PRESETS:
+            raise ValueError(f"unknown preset '{name}'; presets are {list(PRESETS)}")
+        stages, p = PRESETS[name]
+        return cls(character, stages, **{**p, **params})
+
+    def set_params(self, **params) -> None:
+        """Validate and apply parameters; they take effect on the next frame."""
+        checked = {}
+        for k, v in params.items():
+            if k not in PIPELINE_PARAMS:
+                raise ValueError(f"unknown parameter '{k}'; parameters are {list(PIPELINE_PARAMS)}")
+            checked[k] = PIPELINE_PARAMS[k].check(k, v)
+        self.params.update(checked)
+        if "threads" in checked:
+            import numba
+            numba.set_num_threads(min(checked["threads"], numba.config.NUMBA_NUM_THREADS))
+        for s in getattr(self, "stages", []):
+            s.reset()
+
+    def frame(self, q: np.ndarray) -> Frame:
+        """Forward kinematics of pose ``q`` into a fresh :class:`Frame`."""
+        skel = self.character.skeleton
+        q = np.asarray(q, dtype=np.float64)
+        if q.shape != (skel.n_channels,):
+            raise ValueError(f"pose has shape {q.shape}, expected ({skel.n_channels},) "
+                             f"channels {skel.channel_names[:4]}...")
+        if not np.all(np.isfinite(q)):
+            raise ValueError("pose contains NaN or Inf")
+        G = skel.world_matrices(q)
+        M = G @ skel.bind_inv
+        bent = skel.joint_angles(q) > self.params["active_threshold"]
+        bent &= skel.parents >= 0
+        Ms = M[self._seg_joint]
+        A = np.einsum("sij,sj->si", Ms[:, :3, :3], self._segA) + Ms[:, :3, 3]
+        B = np.einsum("sij,sj->si", Ms[:, :3, :3], self._segB) + Ms[:, :3, 3]
+        s, t, sb, tb = self._buf
+        return Frame(q=q, G=G, M=M, bent=bent, surface=s, tet=t, surface_base=sb, tet_base=tb,
+                     seg_A=A, seg_B=B)
+
+    def deform(self, q: np.ndarray) -> np.ndarray:
+        """Deform the surface into pose ``q``.
+
+        Returns
+        -------
+        (n, 3) float64
+            Surface vertices in the order of ``character.V`` (a new array).
+        """
+        t0 = time.perf_counter()
+        fr = self.frame(q)
+        t = {"fk": (time.perf_counter() - t0) * 1e3}
+        for name, stage in zip(self.stage_names, self.stages):
+            a = time.perf_counter()
+            stage(fr)
+            t[name] = (time.perf_counter() - a) * 1e3
+        out = fr.surface.copy()
+        t["total"] = (time.perf_counter() - t0) * 1e3
+        self.timings = t
+        self.counts = fr.counts
+        self.last_frame = fr
+        return out
+
+
+def available_threads() -> int:
+    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1)

@@ -1,0 +1,1 @@
+"""Once per character: tet mesh, regions, weights, constraints, on-disk cache."""

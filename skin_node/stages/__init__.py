@@ -1,0 +1,1 @@
+"""Per-frame stages, one plug-in each, in the order data flows through them."""

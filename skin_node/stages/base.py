@@ -1,0 +1,65 @@
+"""The per-frame state and the interface every stage implements."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Frame:
+    """What flows through the stages for one pose.
+
+    Attributes
+    ----------
+    q : (C,) float
+        The pose (channel vector).
+    G, M : (J, 4, 4) float
+        World matrices and skinning matrices ``G @ inv(B)``.
+    bent : (J,) bool
+        Joints whose pose rotation exceeds the active threshold.
+    surface : (n, 3) float
+        Current surface; stages update it in place.
+    tet : (k, 3) float
+        Current tet-mesh vertices.
+    surface_base, tet_base : (n, 3), (k, 3) float
+        The stage-1 (skinning) result, kept for the embedding update.
+    seg_A, seg_B : (S, 3) float
+        Posed bone segments (see :meth:`Skeleton.bone_segments`).
+    counts : dict
+        Per-stage counters of this frame (active tets, crossings, ...).
+    """
+
+    q: np.ndarray
+    G: np.ndarray
+    M: np.ndarray
+    bent: np.ndarray
+    surface: np.ndarray
+    tet: np.ndarray
+    surface_base: np.ndarray
+    tet_base: np.ndarray
+    seg_A: np.ndarray
+    seg_B: np.ndarray
+    counts: dict = field(default_factory=dict)
+
+
+class Stage:
+    """A per-frame stage: built once for a character, then called per frame.
+
+    Subclasses set ``name``, take ``(character, params)`` and implement
+    ``__call__(frame)``, which updates the frame in place. ``params`` is the
+    pipeline's live parameter dict, so a change applies on the next frame.
+    """
+
+    name = "stage"
+    skinning = False
+
+    def __init__(self, character, params: dict) -> None:
+        self.character = character
+        self.params = params
+
+    def __call__(self, frame: Frame) -> None:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def reset(self) -> None:
+        """Forget any state carried between frames."""

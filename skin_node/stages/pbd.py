@@ -1,0 +1,207 @@
+"""Stage 2: the extended position-based solve over the tet mesh."""
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from ..kernels import solver
+from .base import Frame, Stage
+
+STRETCH, VOLUME, ENERGY, BIND, CONTACT = 0, 1, 2, 3, 4
+CONSTRAINTS = {"stretch": STRETCH, "volume": VOLUME, "energy": ENERGY, "bind": BIND,
+               "contact": CONTACT}
+
+
+def _by_colour(idx: np.ndarray, colour: np.ndarray):
+    """Sort constraint indices by colour; return them and the colour bounds."""
+    c = colour[idx]
+    order = np.argsort(c, kind="stable")
+    idx = np.ascontiguousarray(idx[order])
+    bounds = np.searchsorted(c[order], np.arange(int(c.max(initial=0)) + 2)).astype(np.int64)
+    return idx, bounds
+
+
+class PBD(Stage):
+    """Extended PBD (Chen & Pan 2017) from the stage-1 result, then the surface
+    follows the tets' correction through its embedding.
+
+    Past the paper, each behind a parameter: XPBD compliance (``solver:
+    xpbd``); simulating only the zones of joints the pose bent
+    (``active_regions``); a colour-parallel Gauss-Seidel sweep (``threads``);
+    stopping once the largest correction is below ``tolerance``.
+    """
+
+    name = "pbd"
+
+    def __init__(self, character, params):
+        super().__init__(character, params)
+        r = character.rig
+        self.rig = r
+        self.T, self.E = r.T, r.E
+        self.mass = r.mass
+        self.w_all = 1.0 / np.maximum(r.mass, 1e-30)
+        self.lam = {k: np.zeros(n) for k, n in
+                    ((STRETCH, len(r.E)), (VOLUME, len(r.T)), (ENERGY, len(r.T)), (BIND, len(r.TV)))}
+        self._key = None
+        self._contact_setup(character)
+
+    def _contact_setup(self, character) -> None:
+        """Per joint: its zone's tet vertices, their side (child +1 / parent -1)
+        and each side's flesh radius around its bone."""
+        from ..rigging.weights import point_segment_distance
+        from .collision import JointRegions
+        skel, r = character.skeleton, self.rig
+        J = skel.n_joints
+        below = np.zeros((J, J), dtype=bool)
+        for b in range(J):
+            a = b
+            while a >= 0:
+                below[a, b] = True
+                a = skel.parents[a]
+        dom = r.TWidx[np.arange(len(r.TV)), np.argmax(r.TWval, axis=1)]
+        self._regions = JointRegions(character)
+        self.cverts, self.cside = [], []
+        self.cR = np.zeros((J, 2))
+        for j in range(J):
+            v = np.flatnonzero(r.zone[:, j]) if skel.parents[j] >= 0 else np.zeros(0, np.int64)
+            side = below[j, dom[v]]
+            self.cverts.append(v)
+            self.cside.append(np.where(side, 1.0, -1.0))
+            if len(v):
+                A, B = self._regions.rest_segments(j)
+                for s_ in (0, 1):
+                    pts = r.TV[v[side == bool(s_)]]
+                    d = point_segment_distance(pts, A[s_:s_ + 1], B[s_:s_ + 1])
+                    self.cR[j, s_] = d.max() if d.size else 0.0
+
+    def _contacts(self, fr: Frame):
+        """Contact planes of the joints bent past ``contact_angle`` and the tet
+        vertices of their folds (within the other side's flesh radius)."""
+        skel = self.character.skeleton
+        ang = skel.joint_angles(fr.q)
+        idx, pof, planes = [], [], []
+        for j in np.flatnonzero(fr.bent & (ang > self.params["contact_angle"])):
+            v = self.cverts[j]
+            if not len(v):
+                continue
+            A, B = self._regions.posed_segments(j, fr.M)
+            c = B[0]                                  # the joint, where the bones meet
+            u = A[0] - c
+            t = B[1] - c
+            u /= np.linalg.norm(u) + 1e-300
+            t /= np.linalg.norm(t) + 1e-300
+            n = t - u
+            nn = np.linalg.norm(n)
+            if nn < 1e-6:
+                continue
+            n /= nn
+            side = self.cside[j]
+            X = fr.tet[v]
+            from ..rigging.weights import point_segment_distance
+            near = np.zeros(len(v), dtype=bool)
+            for s_ in (0, 1):           # vertices of side s_ near the other bone
+                m = side == (1.0 if s_ else -1.0)
+                o = 1 - s_
+                d = point_segment_distance(X[m], A[o:o + 1], B[o:o + 1])[:, 0]
+                near[m] = d < self.cR[j, o]
+            sel = np.flatnonzero(near)
+            if not len(sel):
+                continue
+            idx.append(v[sel])
+            pof.append(np.full(len(sel), len(planes)))
+            planes.append(np.concatenate([c, n]))
+            # the parent side keeps to the negative side: flip its normal
+            planes.append(np.concatenate([c, -n]))
+            pof[-1] = np.where(side[sel] > 0, len(planes) - 2, len(planes) - 1)
+        if not idx:
+            return None
+        return (np.concatenate(idx).astype(np.int64), np.array(planes),
+                np.concatenate(pof).astype(np.int64))
+
+    def reset(self) -> None:
+        self._key = None
+
+    def _active(self, bent: np.ndarray):
+        """Index arrays of the constraints to solve and the inverse masses, cached
+        per set of bent joints (a walk keeps the same set frame after frame)."""
+        p = self.params
+        key = (bent.tobytes() if p["active_regions"] else b"all", int(p["threads"]) > 1)
+        if key == self._key:
+            return self._cache
+        r = self.rig
+        if p["active_regions"]:
+            vmask = r.zone[:, bent].any(axis=1)
+        else:
+            vmask = np.ones(len(r.TV), dtype=bool)
+        if not vmask.any():
+            self._key, self._cache = key, None
+            return None
+        tet = np.flatnonzero(vmask[r.T].any(axis=1))
+        edge = np.flatnonzero(vmask[r.E].any(axis=1))
+        vert = np.flatnonzero(vmask)
+        w = np.where(vmask, self.w_all, 0.0)       # zone borders are pinned to stage 1
+        one = lambda a: (np.ascontiguousarray(a, dtype=np.int64),
+                         np.array([0, len(a)], dtype=np.int64))
+        if key[1]:
+            sets = {STRETCH: _by_colour(edge, r.ecol), VOLUME: _by_colour(tet, r.tcol),
+                    ENERGY: _by_colour(tet, r.tcol), BIND: one(vert)}
+        else:
+            sets = {STRETCH: one(edge), VOLUME: one(tet), ENERGY: one(tet), BIND: one(vert)}
+        self._key, self._cache = key, (sets, w, vmask)
+        return self._cache
+
+    def __call__(self, fr: Frame) -> None:
+        p = self.params
+        act = self._active(fr.bent)
+        if act is None or p["iterations"] <= 0:
+            fr.counts["active_tets"] = 0
+            return
+        sets, w, vmask = act
+        r = self.rig
+        X = fr.tet
+        xpbd = p["solver"] == "xpbd"
+        k_of = {STRETCH: p["stretch_stiffness"], VOLUME: p["volume_stiffness"],
+                ENERGY: p["stiffness"], BIND: p["bind_stiffness"]}
+        a_of = {STRETCH: p["stretch_compliance"], VOLUME: p["volume_compliance"],
+                ENERGY: p["energy_compliance"], BIND: p["bind_compliance"]}
+        kinds = [CONSTRAINTS[c] for c in p["constraints"]]
+        contacts = self._contacts(fr) if CONTACT in kinds else None
+        kinds = [c for c in kinds if c != CONTACT]
+        threads = int(p["threads"])
+        ks = np.full(4, p["stiffness"])
+        for kind in kinds:
+            self.lam[kind][:] = 0.0
+        fr.counts["contacts"] = 0 if contacts is None else len(contacts[0])
+        tol = p["tolerance"]
+        it = 0
+        prev = X.copy() if tol > 0 else None
+        for it in range(1, int(p["iterations"]) + 1):
+            for kind in kinds:
+                idx, bounds = sets[kind]
+                # Energy keeps its spring constant as its step scale in both modes
+                # (a uniform k cancels out of C / |grad C|^2 otherwise).
+                k = k_of[kind] if (not xpbd or kind == ENERGY) else 1.0
+                alpha = a_of[kind] if xpbd else 0.0
+                solver.sweep(kind, X, w, self.mass, r.E, r.T, ks, r.bseg, fr.seg_A, fr.seg_B,
+                             r.len0 if kind == STRETCH else r.vol0 if kind == VOLUME
+                             else r.brest, r.erest, self.lam[kind], idx, bounds, k, alpha, threads)
+            if contacts is not None:
+                solver.contact_sweep(X, w, *contacts)
+            if prev is not None:
+                moved = _max_move(X, prev, sets[BIND][0])
+                if moved < tol:
+                    break
+                prev[:] = X
+        fr.counts["active_tets"] = len(sets[VOLUME][0])
+        fr.counts["iterations"] = it
+        solver.embed_update(fr.surface_base, X, fr.tet_base, r.Etet, r.Ebary, fr.surface)
+
+
+@nb.njit(cache=True)
+def _max_move(X, prev, idx):
+    m = 0.0
+    for a in range(idx.shape[0]):
+        i = idx[a]
+        d = (X[i, 0] - prev[i, 0]) ** 2 + (X[i, 1] - prev[i, 1]) ** 2 + (X[i, 2] - prev[i, 2]) ** 2
+        m = max(m, d)
+    return np.sqrt(m)
