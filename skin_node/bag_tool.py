@@ -53,7 +53,7 @@ def read_joint_states(path: str, topic: str | None = None) -> list[tuple[int, by
     Raises
     ------
     ValueError
-        When the bag holds no JointState topic (or not ``topic``).
+        When the bag holds no JointState message (on ``topic``, if given).
     """
     with Reader(path) as reader:
         conns = [c for c in reader.connections if c.msgtype == JOINT_STATE_TYPE
@@ -62,7 +62,10 @@ def read_joint_states(path: str, topic: str | None = None) -> list[tuple[int, by
             found = sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})
             raise ValueError(f"{path}: no {JOINT_STATE_TYPE} topic"
                              f"{' ' + topic if topic else ''}; it holds {found}")
-        return [(t, bytes(raw)) for _, t, raw in reader.messages(connections=conns)]
+        messages = [(t, bytes(raw)) for _, t, raw in reader.messages(connections=conns)]
+    if not messages:
+        raise ValueError(f"{path}: no JointState messages")
+    return messages
 
 
 class BagRecorder(Node):
@@ -103,6 +106,7 @@ def _parse(argv: list[str]) -> argparse.Namespace:
                     metavar="TOPIC[=TYPE]", help="topics to record (default: %(default)s)")
     ap.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
     ap.add_argument("--rate", type=float, default=1.0, help="playback speed factor")
+    ap.add_argument("--limit", type=int, default=0, help="play only the first N messages")
     ap.add_argument("--wait", type=float, default=30.0,
                     help="seconds to wait for skin_node to appear")
     ap.add_argument("--linger", type=float, default=2.5,
@@ -127,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         topics[topic] = type_name or KNOWN_TOPICS[topic.lstrip("/")]
     try:
-        messages = read_joint_states(args.in_bag, args.topic)
+        messages = read_joint_states(args.in_bag, args.topic)[:args.limit or None]
     except Exception as e:  # noqa: BLE001 - rosbags raises several types for a bad bag
         print(f"skin_bag: error: {e}", file=sys.stderr)
         return 1

@@ -8,10 +8,10 @@ the result is published. No geometry lives here.
 Topics (relative, so they can be remapped)
 ------------------------------------------
 ``joint_states`` (sub, sensor_msgs/JointState)
-    RELIABLE, KEEP_LAST 10, VOLATILE - the QoS of robot_state_publisher, so
-    the usual joint state publishers match. Reliable delivery means every
-    message reaches the callback; the callback is cheap (validate + map), so
-    the DDS queue never fills and no frame is lost unseen.
+    RELIABLE, VOLATILE like robot_state_publisher, so the usual joint state
+    publishers match; KEEP_LAST 100 so that a burst waits in DDS for the
+    (cheap: validate + map) callback instead of being dropped unseen. The
+    callback, not the queue, decides what is skipped, and counts it.
 ``skin/points`` (pub, sensor_msgs/PointCloud2)
     One per processed frame, stamp copied from the input, ``frame_id`` param.
 ``skin/mesh`` (pub, shape_msgs/Mesh)
@@ -65,7 +65,7 @@ from msg_adapters import (ChannelMapper, JointStateError, Reason, diagnostic_arr
 NODE_NAME = "skin_node"
 THROTTLE_S = 2.0
 
-QOS_JOINT_STATES = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+QOS_JOINT_STATES = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                               reliability=ReliabilityPolicy.RELIABLE,
                               durability=DurabilityPolicy.VOLATILE)
 QOS_STREAM = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5,
@@ -113,9 +113,14 @@ class SkinNode(Node):
         self._declare_parameters()
         p = lambda name: self.get_parameter(name).value  # noqa: E731
 
-        n = p("surface_vertices")
-        self.character = skin_node.load_character(
-            p("character"), **({"surface_vertices": n} if n > 0 else {}))
+        n, spec = p("surface_vertices"), p("character")
+        try:
+            self.character = skin_node.load_character(
+                spec, **({"surface_vertices": n} if n > 0 else {}))
+        except ValueError:
+            raise
+        except Exception as e:  # noqa: BLE001 - whatever a reader raises, name the file
+            raise ValueError(f"{spec}: {type(e).__name__}: {e}") from None
         self.declare_parameter(
             "joint_names", self.character.channel_names,
             ParameterDescriptor(type=ParameterType.PARAMETER_STRING_ARRAY, read_only=True,

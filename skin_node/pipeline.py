@@ -14,13 +14,14 @@ from .stages.collision import Collision
 from .stages.pbd import CONSTRAINTS, PBD
 from .stages.skinning import DQS, LBS
 from .stages.smooth import Smooth
+from .stages.volume import Volume
 
-STAGES = {s.name: s for s in (LBS, DQS, PBD, Collision, Smooth)}
+STAGES = {s.name: s for s in (LBS, DQS, PBD, Collision, Smooth, Volume)}
 STAGE_NAMES = tuple(STAGES)
 
 #: Our default: DQS start (no candy wrapper), extended PBD on the bent joints'
 #: zones, the paper's self-collision and smoothing.
-DEFAULT_STAGES = ("dqs", "pbd", "collision", "smooth")
+DEFAULT_STAGES = ("dqs", "pbd", "smooth", "collision", "volume")
 
 #: Named stage lists with the parameters that make them what they are.
 PRESETS = {
@@ -32,6 +33,8 @@ PRESETS = {
     # Chen & Pan 2017 as published: LBS start, plain PBD, its four constraints.
     "paper": (("lbs", "pbd", "collision", "smooth"),
               {"solver": "pbd", "active_regions": False, "collision_halfspace": False,
+               "collision_pushout": False,
+               "collision_plane": "paper", "volume_preserve": False,
                "constraints": ["stretch", "volume", "bind", "energy"]}),
     "default": (DEFAULT_STAGES, {}),
 }
@@ -82,7 +85,7 @@ PIPELINE_PARAMS = {
     "solver": ParamSpec(str, "xpbd", description="'pbd' (stiffness scales each step, the paper) "
                         "or 'xpbd' (compliance; result independent of the iteration count)",
                         choices=("pbd", "xpbd")),
-    "constraints": ParamSpec(list, ["stretch", "volume", "bind", "energy", "contact"],
+    "constraints": ParamSpec(list, ["stretch", "volume", "bind", "energy"],
                              description="constraint types solved, in this order",
                              choices=tuple(CONSTRAINTS)),
     "stretch_stiffness": ParamSpec(float, 1.0, 0.0, 1.0, "PBD stiffness of tet edges"),
@@ -101,9 +104,15 @@ PIPELINE_PARAMS = {
                                   "a joint counts as bent above this rotation (rad)"),
     "threads": ParamSpec(int, 1, 1, 64, "threads of the colour-parallel solve (1 = sequential)"),
     "self_collision": ParamSpec(bool, True, description="run the collision stage"),
-    "collision_passes": ParamSpec(int, 3, 1, 20, "detect-and-project passes per joint"),
+    "collision_passes": ParamSpec(int, 8, 1, 20, "detect-and-resolve passes per joint"),
+    "collision_pushout": ParamSpec(bool, True, description="after the plane projection, push "
+                                   "each still-crossed vertex out in front of the skin it crossed"),
+    "collision_plane": ParamSpec(str, "bisector", description="contact plane: 'paper' (through "
+                                 "the farthest crossing point) or 'bisector' (of the two bones)",
+                                 choices=("paper", "bisector")),
     "collision_halfspace": ParamSpec(bool, True, description="also project every vertex of the "
                                      "interpenetration zone on the wrong side of the plane"),
+    "volume_preserve": ParamSpec(bool, True, description="run the volume stage"),
     "smoothing": ParamSpec(float, 0.3, 0.0, 1.0, "Laplacian smoothing strength k"),
     "smoothing_iterations": ParamSpec(int, 1, 0, 50, "Laplacian smoothing passes"),
 }

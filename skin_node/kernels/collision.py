@@ -80,8 +80,8 @@ def _seg_dist(px, py, pz, A, B):
 
 
 @nb.njit(cache=True)
-def crossed_vertices(X, X0, F, verts, vside, tris, tside, segA, segB, R, rest_sep, rest_tol,
-                     cell):
+def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, rest_sep,
+                     rest_tol, cell):
     """The paper's sign test for skin passing through skin, made unambiguous.
 
     A joint region has two sides, 0 (parent bone) and 1 (child bone); each
@@ -91,12 +91,16 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, segA, segB, R, rest_se
     of bone ``o`` (a cheap filter that leaves few candidates). For those, take
     the nearest triangle of side ``o`` (at least ``rest_sep`` from ``p`` at rest,
     so no vertex is tested against its own neighbourhood); with ``c`` its centre
-    and ``n`` its unit normal, ``F = (p - c) . n``. The vertex has passed
+    and ``n`` its unit normal, ``F = (p - c) . n``. ``n`` is the triangle's rest
+    normal carried by its bone (``tnorm``), not the current one: a triangle
+    crumpled flat in a crease has a meaningless normal, the skin it belongs to
+    still faces the way its bone says. The vertex has passed
     through the skin when its closest point is inside that face and ``F`` is
     negative now while it was not at rest (``F0 > -rest_tol``: a vertex of a
     concave rest fold may already sit behind a far plane). A candidate with no
     skin of side ``o`` within ``cell`` but deep in its flesh (closer than
-    ``R[o] / 2`` to bone ``o``) has crossed too.
+    ``R[o] / 2`` to bone ``o`` and farther than ``R[o]`` from the joint) has
+    crossed too.
 
     Returns
     -------
@@ -125,9 +129,11 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, segA, segB, R, rest_se
     fill = counts[:-1].copy()
     items = np.empty(nt, dtype=np.int64)
     iside = np.empty(nt, dtype=np.int64)
+    inorm = np.empty((nt, 3))
     for a in range(nt):
         items[fill[keys[a]]] = tris[a]
         iside[fill[keys[a]]] = tside[a]
+        inorm[fill[keys[a]]] = tnorm[a]
         fill[keys[a]] += 1
     # Per item: centre now, bounding radius, centre at rest (so the pair loop
     # rejects most triangles before the exact closest-point test).
@@ -150,7 +156,7 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, segA, segB, R, rest_se
         if dbone > R[o]:
             continue
         ix, iy, iz = int(math.floor(px / h)), int(math.floor(py / h)), int(math.floor(pz / h))
-        best, best_d, best_in = -1, h * h, False
+        best, best_d, best_in, best_b = -1, h * h, False, -1
         for dx in range(-1, 2):
             for dy in range(-1, 2):
                 for dz in range(-1, 2):
@@ -175,14 +181,19 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, segA, segB, R, rest_se
                             X[a1, 2], X[a2, 0], X[a2, 1], X[a2, 2])
                         d = (px - qx) ** 2 + (py - qy) ** 2 + (pz - qz) ** 2
                         if d < best_d:
-                            best, best_d, best_in = f, d, inside
+                            best, best_d, best_in, best_b = f, d, inside, b
         if best < 0:
-            if dbone < 0.5 * R[o]:
+            # deep in the other side's flesh: near its bone, away from the joint
+            # (segA[1] is the joint, where both bones start and the flesh is shared)
+            dj = math.sqrt((px - segA[1, 0]) ** 2 + (py - segA[1, 1]) ** 2
+                           + (pz - segA[1, 2]) ** 2)
+            if dbone < 0.5 * R[o] and dj > R[o]:
                 out[a] = -2
             continue
         if not best_in:
             continue
-        gx, gy, gz, nx, ny, nz = _plane(X, F, best)
+        gx, gy, gz = geo[best_b, 0], geo[best_b, 1], geo[best_b, 2]
+        nx, ny, nz = inorm[best_b, 0], inorm[best_b, 1], inorm[best_b, 2]
         Fnow = (px - gx) * nx + (py - gy) * ny + (pz - gz) * nz
         g0, g1, g2, m0, m1, m2 = _plane(X0, F, best)
         Frest = (X0[i, 0] - g0) * m0 + (X0[i, 1] - g1) * m1 + (X0[i, 2] - g2) * m2

@@ -16,7 +16,7 @@ from ..skeleton import Skeleton
 from .tetra import greedy_colour, lattice_for_count, signed_volumes, tet_edges
 from .weights import bone_distances, inverse_distance_weights, joint_radii, joint_regions
 
-RIG_VERSION = 4
+RIG_VERSION = 5
 
 
 @dataclass

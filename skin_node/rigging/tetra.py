@@ -35,7 +35,22 @@ def _kuhn_corners() -> np.ndarray:
     return out
 
 
-_KUHN = _kuhn_corners()
+def _oriented(corners: np.ndarray):
+    """Swap the last two corners of the Kuhn tets whose signed volume (the
+    METHOD formula) is negative, so every tet of the lattice has the same
+    orientation; return the corners and the barycentric column order."""
+    pos = np.array([[(b >> 0) & 1, (b >> 1) & 1, (b >> 2) & 1] for b in range(8)], float)
+    cols = np.tile(np.arange(4), (len(corners), 1))
+    out = corners.copy()
+    for t in range(len(corners)):
+        p1, p2, p3, p4 = pos[corners[t]]
+        if np.dot(np.cross(p1 - p2, p1 - p3), p1 - p4) < 0:
+            out[t, [2, 3]] = out[t, [3, 2]]
+            cols[t, [2, 3]] = cols[t, [3, 2]]
+    return out, cols
+
+
+_KUHN, _BARY_COLS = _oriented(_kuhn_corners())
 
 
 @nb.njit(cache=True)
@@ -150,6 +165,7 @@ def lattice_tets(V: np.ndarray, F: np.ndarray, h: float):
     perm_id = _perm_index(order)
     us = np.take_along_axis(u, order, axis=1)
     Ebary = np.stack([1.0 - us[:, 0], us[:, 0] - us[:, 1], us[:, 1] - us[:, 2], us[:, 2]], axis=1)
+    Ebary = np.take_along_axis(Ebary, _BARY_COLS[perm_id], axis=1)
     Etet = T[6 * c + perm_id]
     return TV, T, Etet, Ebary
 

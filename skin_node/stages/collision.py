@@ -50,6 +50,15 @@ class JointRegions:
                     d = point_segment_distance(character.V[v[side == s_]], A[s_:s_ + 1],
                                                B[s_:s_ + 1])
                     self.R[j, s_] = 1.05 * d.max() if d.size else 0.0
+        # Rest normals and the dominant bone of every triangle, to carry normals.
+        V = character.V
+        N = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+        self.tri_normal = N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-30)
+        wsum = np.zeros((len(F), J))
+        for k in range(3):
+            np.add.at(wsum, (np.repeat(np.arange(len(F)), r.Widx.shape[1]),
+                             r.Widx[F[:, k]].ravel()), r.Wval[F[:, k]].ravel())
+        self.tri_bone = np.argmax(wsum, axis=1)
         e = np.linalg.norm(character.V[F[:, 0]] - character.V[F[:, 1]], axis=1)
         self.edge = float(np.median(e))
         self.emax = float(e.max())
@@ -74,8 +83,10 @@ class JointRegions:
         """Per vertex of ``verts[j]``: the crossed triangle, -2 deep inside, -1 not crossed."""
         A, B = self.posed_segments(j, M)
         rad = self.radius[j]
-        return crossed_vertices(X, X0, F, self.verts[j], self.vside[j], self.tris[j],
-                                self.tside[j], A, B, self.R[j], 3.0 * self.edge, 0.5 * rad,
+        t = self.tris[j]
+        tn = np.einsum("tij,tj->ti", M[self.tri_bone[t], :3, :3], self.tri_normal[t])
+        return crossed_vertices(X, X0, F, self.verts[j], self.vside[j], t, self.tside[j], tn,
+                                A, B, self.R[j], 3.0 * self.edge, 0.5 * rad,
                                 max(2.0 * self.emax, 0.4 * rad))
 
     def in_other(self, X: np.ndarray, M: np.ndarray, j: int) -> np.ndarray:
@@ -112,8 +123,10 @@ class Collision(Stage):
 
     A crossed vertex is projected onto the plane through the joint ``j`` that is
     perpendicular to the plane of the two bones and passes through the farthest
-    crossing point ``q``: ``p' = p - (n . (p - j)) n``, then nudged ``eps`` to its
-    own side so it does not sit exactly on the other skin. Detection and
+    crossing point ``q`` (``collision_plane: paper``) or bisects the two bones
+    (``bisector``, the contact plane of two limbs of equal girth):
+    ``p' = p - (n . (p - j)) n``, then nudged ``eps`` to its own side so it does
+    not sit exactly on the other skin. Detection and
     projection repeat up to ``collision_passes`` times.
     """
 
@@ -140,7 +153,7 @@ class Collision(Stage):
         m = np.cross(u, v)
         if np.linalg.norm(m) < 1e-3:
             return None
-        n = np.cross(m, q - pj)
+        n = np.cross(m, q - pj) if self.params["collision_plane"] == "paper" else v - u
         if np.linalg.norm(n) < 1e-9:
             n = v - u
         n /= np.linalg.norm(n)
@@ -154,31 +167,49 @@ class Collision(Stage):
         X = fr.surface
         regs = self.regions
         eps = 0.5e-3
-        total = 0
+        projected = pushed = 0
         for j in regs.active(fr.bent):
+            plane = None
             for _ in range(int(self.params["collision_passes"])):
                 hit = regs.crossed(X, self.V0, self.F, fr.M, j)
-                idx = regs.verts[j][hit != -1]
-                if len(idx) == 0:
+                crossed = hit != -1
+                if not crossed.any():
                     break
-                pj = fr.G[j, :3, 3]
-                far = idx[np.argmax(np.linalg.norm(X[idx] - pj, axis=1))]
-                plane = self._plane_normal(fr, j, X[far])
+                v, side = regs.verts[j], regs.vside[j]
+                sgn = 2.0 * side - 1.0
                 if plane is None:
-                    break
-                pj, n = plane
-                if self.params["collision_halfspace"]:
-                    # Past the paper: every vertex of the interpenetration zone on
-                    # the wrong side of the plane goes to it, not only the crossed.
-                    v, side = regs.verts[j], regs.vside[j]
-                    sgn = 2.0 * side - 1.0
-                    dist = (X[v] - pj) @ n
-                    wrong = (sgn * dist < eps) & regs.in_other(X, fr.M, j)
-                    wrong[hit != -1] = True
-                    idx, sgn = v[wrong], sgn[wrong]
+                    pj = fr.G[j, :3, 3]
+                    idx = v[crossed]
+                    far = idx[np.argmax(np.linalg.norm(X[idx] - pj, axis=1))]
+                    plane = self._plane_normal(fr, j, X[far])
+                    if plane is None:
+                        break
+                    pj, n = plane
+                    move = crossed.copy()
+                    if self.params["collision_halfspace"]:
+                        # Past the paper: every vertex of the interpenetration zone on
+                        # the wrong side of the plane goes to it, not only the crossed.
+                        dist = (X[v] - pj) @ n
+                        move |= (sgn * dist < eps) & regs.in_other(X, fr.M, j)
+                    dist = (X[v[move]] - pj) @ n
+                    X[v[move]] -= (dist - sgn[move] * eps)[:, None] * n[None, :]
+                    projected += int(move.sum())
+                elif self.params["collision_pushout"]:
+                    # Residuals (creases the plane cannot separate): push each crossed
+                    # vertex out in front of the skin it crossed, along that skin's normal.
+                    tri = hit >= 0
+                    f = hit[tri]
+                    nrm = np.einsum("tij,tj->ti", fr.M[regs.tri_bone[f], :3, :3],
+                                    regs.tri_normal[f])
+                    c = X[self.F[f]].mean(axis=1)
+                    depth = ((X[v[tri]] - c) * nrm).sum(1)
+                    X[v[tri]] += (eps - depth)[:, None] * nrm
+                    pj, n = plane
+                    deep = hit == -2
+                    dist = (X[v[deep]] - pj) @ n
+                    X[v[deep]] -= (dist - sgn[deep] * eps)[:, None] * n[None, :]
+                    pushed += int(crossed.sum())
                 else:
-                    sgn = 2.0 * regs.vside[j][hit != -1] - 1.0
-                dist = (X[idx] - pj) @ n
-                X[idx] -= (dist - sgn * eps)[:, None] * n[None, :]
-                total += len(idx)
-        fr.counts["projected"] = total
+                    break
+        fr.counts["projected"] = projected
+        fr.counts["pushed"] = pushed

@@ -5,11 +5,12 @@ import numba as nb
 import numpy as np
 
 from ..kernels import solver
+from ..kernels.constraints import zone_volume_constraint
 from .base import Frame, Stage
 
-STRETCH, VOLUME, ENERGY, BIND, CONTACT = 0, 1, 2, 3, 4
+STRETCH, VOLUME, ENERGY, BIND, CONTACT, ZONE = 0, 1, 2, 3, 4, 5
 CONSTRAINTS = {"stretch": STRETCH, "volume": VOLUME, "energy": ENERGY, "bind": BIND,
-               "contact": CONTACT}
+               "contact": CONTACT, "zone_volume": ZONE}
 
 
 def _by_colour(idx: np.ndarray, colour: np.ndarray):
@@ -42,7 +43,8 @@ class PBD(Stage):
         self.w_all = 1.0 / np.maximum(r.mass, 1e-30)
         self.lam = {k: np.zeros(n) for k, n in
                     ((STRETCH, len(r.E)), (VOLUME, len(r.T)), (ENERGY, len(r.T)), (BIND, len(r.TV)))}
-        self._key = None
+        self._key = self._zkey = None
+        self._g = np.zeros((len(r.TV), 3))
         self._contact_setup(character)
 
     def _contact_setup(self, character) -> None:
@@ -73,6 +75,19 @@ class PBD(Stage):
                     pts = r.TV[v[side == bool(s_)]]
                     d = point_segment_distance(pts, A[s_:s_ + 1], B[s_:s_ + 1])
                     self.cR[j, s_] = d.max() if d.size else 0.0
+
+    def _zones(self, bent: np.ndarray):
+        """(tets, vertices, rest volume) of each bent joint's zone, cached."""
+        key = bent.tobytes()
+        if key != self._zkey:
+            r = self.rig
+            out = []
+            for j in np.flatnonzero(bent):
+                zt = np.flatnonzero(r.zone[r.T, j].any(axis=1))
+                if len(zt):
+                    out.append((zt, np.unique(r.T[zt]), float(r.vol0[zt].sum())))
+            self._zkey, self._zcache = key, out
+        return self._zcache
 
     def _contacts(self, fr: Frame):
         """Contact planes of the joints bent past ``contact_angle`` and the tet
@@ -166,7 +181,8 @@ class PBD(Stage):
                 ENERGY: p["energy_compliance"], BIND: p["bind_compliance"]}
         kinds = [CONSTRAINTS[c] for c in p["constraints"]]
         contacts = self._contacts(fr) if CONTACT in kinds else None
-        kinds = [c for c in kinds if c != CONTACT]
+        zones = self._zones(fr.bent) if ZONE in kinds else []
+        kinds = [c for c in kinds if c not in (CONTACT, ZONE)]
         threads = int(p["threads"])
         ks = np.full(4, p["stiffness"])
         for kind in kinds:
@@ -185,6 +201,8 @@ class PBD(Stage):
                 solver.sweep(kind, X, w, self.mass, r.E, r.T, ks, r.bseg, fr.seg_A, fr.seg_B,
                              r.len0 if kind == STRETCH else r.vol0 if kind == VOLUME
                              else r.brest, r.erest, self.lam[kind], idx, bounds, k, alpha, threads)
+            for tets, verts, v0 in zones:
+                zone_volume_constraint(X, r.T, tets, verts, w, v0, 1.0, self._g)
             if contacts is not None:
                 solver.contact_sweep(X, w, *contacts)
             if prev is not None:
