@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import queue
 import sys
 import threading
 import time
@@ -69,32 +70,49 @@ def read_joint_states(path: str, topic: str | None = None) -> list[tuple[int, by
 
 
 class BagRecorder(Node):
-    """Publishes raw joint states and writes raw recordings into a bag."""
+    """Publishes raw joint states; queues raw recordings for the writer.
+
+    Only the main thread touches the bag (an SQLite connection belongs to
+    the thread that opened it), so callbacks just queue what they receive.
+    """
 
     def __init__(self, writer: Writer, topics: dict[str, str]) -> None:
         super().__init__("skin_bag")
         typestore = get_typestore(Stores.ROS2_JAZZY)
         self.counts = {t: 0 for t in topics}
-        self._writer, self._lock = writer, threading.Lock()
+        self._writer, self._queue = writer, queue.SimpleQueue()
         self.pub = self.create_publisher(JointState, "joint_states", QOS_PLAY)
         self.subs = []
         for topic, type_name in topics.items():
             conn = writer.add_connection("/" + topic.lstrip("/"), type_name, typestore=typestore)
             self.subs.append(self.create_subscription(
-                _message_class(type_name), topic, self._recorder(topic, conn), QOS_RECORD,
-                raw=True))
+                _message_class(type_name), topic,
+                lambda raw, t=topic, c=conn: self._queue.put(
+                    (t, c, self.get_clock().now().nanoseconds, raw)),
+                QOS_RECORD, raw=True))
 
-    def _recorder(self, topic: str, conn):
-        def record(raw: bytes) -> None:
-            with self._lock:
-                self._writer.write(conn, self.get_clock().now().nanoseconds, raw)
-                self.counts[topic] += 1
-        return record
+    def write_pending(self) -> None:
+        """Write everything received so far (main thread only)."""
+        while not self._queue.empty():
+            topic, conn, t, raw = self._queue.get()
+            self._writer.write(conn, t, raw)
+            self.counts[topic] += 1
 
     def matched(self) -> bool:
         """True once the node listens to us and we listen to each of its topics."""
         return (self.pub.get_subscription_count() > 0
                 and all(s.get_publisher_count() > 0 for s in self.subs))
+
+
+def _sleep_writing(node: BagRecorder, seconds: float) -> None:
+    """Sleep ``seconds`` while writing what arrives."""
+    end = time.monotonic() + seconds
+    while True:
+        node.write_pending()
+        left = end - time.monotonic()
+        if left <= 0:
+            return
+        time.sleep(min(left, 0.02))
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -156,15 +174,13 @@ def main(argv: list[str] | None = None) -> int:
             time.sleep(0.5)
             t0, start = messages[0][0], time.monotonic()
             for t, raw in messages:
-                delay = start + (t - t0) * 1e-9 / args.rate - time.monotonic()
-                if delay > 0:
-                    time.sleep(delay)
+                _sleep_writing(node, start + (t - t0) * 1e-9 / args.rate - time.monotonic())
                 node.pub.publish(raw)
             played_s = time.monotonic() - start
-            time.sleep(args.linger)
+            _sleep_writing(node, args.linger)
             executor.shutdown()
-            with node._lock:
-                counts = dict(node.counts)
+            node.write_pending()
+            counts = node.counts
     except (KeyboardInterrupt, ExternalShutdownException):
         return 1
     finally:

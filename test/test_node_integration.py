@@ -1,0 +1,342 @@
+"""The node as a process: bags of joint states in, recorded outputs checked.
+
+Each test starts ``skin_node`` (the installed console script when it is on
+PATH, else ``python -m skin_node.node``) on its own ROS_DOMAIN_ID with DDS kept
+on localhost, replays a rosbag2 bag written here with ``rosbags`` through
+``skin_bag``, and reads the bag ``skin_bag`` recorded.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from rclpy.serialization import deserialize_message, serialize_message
+from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+from sensor_msgs.msg import JointState, PointCloud2
+from diagnostic_msgs.msg import DiagnosticArray
+
+import skin_node
+from skin_node.player import character_skeleton
+from msg_adapters import Reason, diagnostic_values, point_cloud2_to_vertices
+
+REPO = Path(__file__).resolve().parents[1]
+PR2_BAG = REPO.parent / "shared" / "data" / "bags" / "pr2_joint_states_mcap"
+NAME_MAP = REPO / "config" / "name_map_example.yaml"
+ARM_VERTICES = 2000
+READY_TIMEOUT = 300.0     # a cold rig cache builds the arm's tets and weights first
+_domains = iter(range(100))
+
+
+def _env() -> dict:
+    """Environment of one node + tools: a fresh domain, DDS on localhost."""
+    env = dict(os.environ)
+    env.update(ROS_DOMAIN_ID=str(10 + (os.getpid() + next(_domains)) % 90),
+               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1",
+               RCUTILS_LOGGING_BUFFERED_STREAM="0")
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [env.get("PYTHONPATH"), str(REPO)]))
+    return env
+
+
+def _command(script: str, module: str) -> list[str]:
+    exe = shutil.which(script)
+    return [exe] if exe else [sys.executable, "-m", module]
+
+
+@contextlib.contextmanager
+def running_node(tmp_path: Path, *ros_args: str):
+    """Start skin_node, wait for 'ready', yield (process, env, log path), then stop it."""
+    env = _env()
+    log = tmp_path / f"node-{env['ROS_DOMAIN_ID']}.log"
+    with open(log, "w") as out:
+        proc = subprocess.Popen(
+            _command("skin_node", "skin_node.node") + ["--ros-args", *ros_args],
+            stdout=out, stderr=subprocess.STDOUT, env=env, cwd=REPO)
+    try:
+        deadline = time.monotonic() + READY_TIMEOUT
+        while "]: ready in" not in log.read_text():
+            if proc.poll() is not None or time.monotonic() > deadline:
+                pytest.fail(f"skin_node did not come up:\n{log.read_text()}")
+            time.sleep(0.2)
+        yield proc, env, log
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(5)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+def arm_node(tmp_path: Path, *ros_args: str):
+    return running_node(tmp_path, "-p", "character:=arm",
+                        "-p", f"surface_vertices:={ARM_VERTICES}", *ros_args)
+
+
+def play_and_record(env: dict, in_bag: Path, out_bag: Path, *args: str) -> str:
+    cmd = _command("skin_bag", "skin_node.bag_tool") + [str(in_bag), str(out_bag), *args]
+    res = subprocess.run(cmd, env=env, cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stdout + res.stderr
+    return res.stdout
+
+
+def read_outputs(bag: Path) -> tuple[list[PointCloud2], dict]:
+    """Recorded point clouds, and the values of the last diagnostics message."""
+    clouds, diag = [], None
+    with Reader(bag) as reader:
+        for conn, _, raw in reader.messages():
+            if conn.topic == "/skin/points":
+                clouds.append(deserialize_message(bytes(raw), PointCloud2))
+            elif conn.topic == "/skin/diagnostics":
+                diag = deserialize_message(bytes(raw), DiagnosticArray)
+    assert diag is not None, "no diagnostics recorded"
+    return clouds, diagnostic_values(diag)
+
+
+def stamp_ns(msg) -> int:
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def joint_state(t_ns: int, names, positions) -> JointState:
+    msg = JointState()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(t_ns), 1_000_000_000)
+    msg.name = list(names)
+    msg.position = [float(p) for p in positions]
+    return msg
+
+
+def write_bag(path: Path, storage: str, stream: list[tuple[int, JointState]]) -> None:
+    """A rosbag2 bag of ``(log time ns, JointState)`` on /joint_states, written by rosbags."""
+    plugin = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}[storage]
+    with Writer(path, version=8, storage_plugin=plugin) as writer:
+        conn = writer.add_connection("/joint_states", "sensor_msgs/msg/JointState",
+                                     typestore=get_typestore(Stores.ROS2_JAZZY))
+        for t, msg in stream:
+            writer.write(conn, t, serialize_message(msg))
+
+
+def arm_stream(n_valid: int, hz: float, with_bad: bool = True):
+    """Valid arm poses at ``hz``, each followed (when ``with_bad``) by one bad message
+    of a rotating kind. Returns (stream, valid stamps, bad stamps by reason)."""
+    names = character_skeleton("arm").channel_names
+    t0, dt = 1_700_000_000 * 10**9, int(1e9 / hz)
+    bad_kinds = [
+        (Reason.NON_FINITE, lambda q: (names, np.where(np.arange(len(q)) == 7, np.nan, q))),
+        (Reason.LENGTH_MISMATCH, lambda q: (names, q[:-1])),
+        (Reason.DUPLICATE_NAMES, lambda q: (names[:4] + names[3:4], q[:5])),
+        (Reason.EMPTY, lambda q: ([], [])),
+        (Reason.OUT_OF_RANGE, lambda q: (names, q + 5000.0)),
+        (Reason.NO_KNOWN_NAMES, lambda q: (["caster_wheel", "gripper"], q[:2])),
+        (Reason.STAMP_BACKWARDS, lambda q: (names, q)),
+    ]
+    stream, valid, bad = [], [], {}
+    for i in range(n_valid):
+        t = t0 + i * dt
+        q = np.zeros(len(names))
+        q[names.index("elbow_rz")] = 1.2 * (1 - np.cos(2 * np.pi * i / 40))
+        q[names.index("wrist_rx")] = 0.8 * np.sin(2 * np.pi * i / 30)
+        stream.append((t, joint_state(t, names, q)))
+        valid.append(t)
+        if with_bad and i >= 1 and i % 5 == 0:
+            reason, make = bad_kinds[(i // 5 - 1) % len(bad_kinds)]
+            stamp = t - dt // 2 if reason is Reason.STAMP_BACKWARDS else t + dt // 2
+            stream.append((t + dt // 2, joint_state(stamp, *make(q))))
+            bad.setdefault(reason, []).append(stamp)
+    return stream, valid, bad
+
+
+# ------------------------------------------------------------------ tests
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_replay_answers_each_valid_message_once_and_counts_bad_ones(tmp_path, storage):
+    stream, valid, bad = arm_stream(n_valid=80, hz=20.0)
+    assert set(bad) == set(Reason)  # every rejection reason is exercised
+    write_bag(tmp_path / "in", storage, stream)
+    # A light pipeline keeps each frame well under the 50 ms between messages on
+    # a loaded 2-core machine, so no frame may be skipped as stale.
+    with arm_node(tmp_path, "-p", "pipeline:=[dqs, smooth]") as (proc, env, log):
+        play_and_record(env, tmp_path / "in", tmp_path / "out", "--storage", storage)
+        assert proc.poll() is None, "node died"
+    clouds, diag = read_outputs(tmp_path / "out")
+
+    assert [stamp_ns(c) for c in clouds] == valid
+    for c in clouds:
+        V = point_cloud2_to_vertices(c)
+        assert V.shape[0] == c.width and abs(V.shape[0] - ARM_VERTICES) < 0.05 * ARM_VERTICES
+        assert c.is_dense and np.isfinite(V).all() and c.header.frame_id == "world"
+    assert int(diag["frames_received"]) == len(stream)
+    assert int(diag["frames_processed"]) == len(valid)
+    assert int(diag["frames_skipped_stale"]) == 0
+    assert int(diag["rejected_total"]) == sum(len(v) for v in bad.values())
+    for reason, stamps in bad.items():
+        assert int(diag[f"rejected_{reason.value}"]) == len(stamps), reason
+    assert diag["unknown_names"] == "caster_wheel,gripper"
+    assert "rejected" in log.read_text()  # the throttled warning
+
+
+def test_burst_processes_newest_and_counts_stale(tmp_path):
+    stream, valid, _ = arm_stream(n_valid=60, hz=2000.0, with_bad=False)
+    write_bag(tmp_path / "in", "mcap", stream)
+    with arm_node(tmp_path) as (proc, env, log):  # the full default pipeline
+        play_and_record(env, tmp_path / "in", tmp_path / "out")
+    clouds, diag = read_outputs(tmp_path / "out")
+    out = [stamp_ns(c) for c in clouds]
+    processed, stale = int(diag["frames_processed"]), int(diag["frames_skipped_stale"])
+    assert int(diag["frames_received"]) == len(valid)
+    assert processed == len(out) and processed + stale == len(valid)
+    assert stale > 0, "a 2 kHz burst must outrun the solver"
+    assert out[-1] == valid[-1], "the newest frame must always be processed"
+    assert out == sorted(set(out)) and set(out) <= set(valid)
+
+
+def _pr2_or_skip() -> Path:
+    if not (PR2_BAG / "metadata.yaml").exists():
+        pytest.skip(f"real PR2 bag not found at {PR2_BAG}")
+    return PR2_BAG
+
+
+def test_real_pr2_bag_unknown_names_are_counted_not_fatal(tmp_path):
+    bag = _pr2_or_skip()
+    n = 300   # 3 s of the 100 Hz recording, at the recorded rate
+    with Reader(bag) as reader:
+        stamps = [stamp_ns(deserialize_message(bytes(raw), JointState))
+                  for _, _, raw in reader.messages()][:n]
+    # Mapped: 7 PR2 right-arm joints drive the arm, the other 35 names are unknown.
+    with arm_node(tmp_path, "-p", f"name_map:={NAME_MAP}") as (proc, env, log):
+        play_and_record(env, bag, tmp_path / "mapped", "--limit", str(n))
+        assert proc.poll() is None
+    clouds, diag = read_outputs(tmp_path / "mapped")
+    out = [stamp_ns(c) for c in clouds]
+    assert out and out == sorted(set(out)) and set(out) <= set(stamps)
+    assert int(diag["frames_received"]) == n and int(diag["rejected_total"]) == 0
+    assert int(diag["frames_processed"]) + int(diag["frames_skipped_stale"]) == n
+    unknown = diag["unknown_names"].split(",")
+    assert {"r_gripper_float_joint", "l_gripper_float_joint"} <= set(unknown)
+    assert int(diag["unknown_name_count"]) == 42 - 7 == len(unknown)
+
+    # Unmapped: no PR2 name is an arm channel; every message is rejected, none answered.
+    with arm_node(tmp_path) as (proc, env, log):
+        play_and_record(env, bag, tmp_path / "unmapped", "--limit", "100", "--rate", "2")
+        assert proc.poll() is None
+    clouds, diag = read_outputs(tmp_path / "unmapped")
+    assert clouds == []
+    assert int(diag["rejected_no_known_names"]) == 100
+    assert int(diag["unknown_name_count"]) == 42
+
+
+def test_parameters_mesh_marker_and_sigterm(tmp_path):
+    import rclpy
+    import rclpy.executors
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from shape_msgs.msg import Mesh
+    from visualization_msgs.msg import Marker
+
+    with running_node(tmp_path, "--params-file", str(REPO / "config" / "arm.yaml"),
+                      "-p", f"surface_vertices:={ARM_VERTICES}") as (proc, env, log):
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=int(env["ROS_DOMAIN_ID"]))
+        try:
+            node = rclpy.create_node("skin_node_test", context=ctx)
+            ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
+            ex.add_node(node)
+            got = {"mesh": [], "marker": [], "points": []}
+            latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+            node.create_subscription(Mesh, "skin/mesh", got["mesh"].append, latched)
+            node.create_subscription(Marker, "skin/marker", got["marker"].append, 5)
+            node.create_subscription(PointCloud2, "skin/points", got["points"].append, 5)
+            client = AsyncParameterClient(node, "skin_node")
+            assert client.wait_for_services(10.0)
+
+            def set_params(**kw):
+                fut = client.set_parameters([Parameter(k, value=v) for k, v in kw.items()])
+                ex.spin_until_future_complete(fut, timeout_sec=10.0)
+                return fut.result().results
+
+            ok = lambda r: [x.successful for x in r]  # noqa: E731
+            assert ok(set_params(stiffness=0.3, iterations=7)) == [True, True]
+            assert ok(set_params(iterations=100000)) == [False]          # out of range
+            assert ok(set_params(stiffness=2.0)) == [False]
+            assert ok(set_params(solver="newton")) == [False]            # not a choice
+            r = set_params(pipeline=["dqs", "warp"])
+            assert not r[0].successful and "warp" in r[0].reason
+            assert ok(set_params(character="humanoid")) == [False]       # read-only
+            assert ok(set_params(pipeline=["lbs", "smooth"])) == [True]
+
+            pub = node.create_publisher(JointState, "joint_states", 10)
+            channel_names = character_skeleton("arm").channel_names
+            deadline = time.monotonic() + 20.0
+            i = 0
+            while (not got["marker"] or not got["mesh"]) and time.monotonic() < deadline:
+                if pub.get_subscription_count():
+                    q = np.zeros(len(channel_names))
+                    q[channel_names.index("elbow_rz")] = 0.05 * i
+                    pub.publish(joint_state(10**9 + i * 10**7, channel_names, q))
+                    i += 1
+                ex.spin_once(timeout_sec=0.1)
+            assert got["mesh"] and got["marker"], "no mesh or marker received"
+            n_vertices, n_triangles = len(got["mesh"][0].vertices), len(got["mesh"][0].triangles)
+            marker = got["marker"][-1]
+            assert marker.type == Marker.TRIANGLE_LIST and len(marker.points) == 3 * n_triangles
+            assert got["points"] and got["points"][-1].width == n_vertices
+            assert "parameters applied" in log.read_text()
+        finally:
+            rclpy.try_shutdown(context=ctx)
+
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(5) == 0
+        assert time.monotonic() - t0 < 2.0
+
+
+def test_sigint_exits_cleanly(tmp_path):
+    with arm_node(tmp_path) as (proc, env, log):
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(5) == 0
+        assert time.monotonic() - t0 < 2.0
+    assert "Traceback" not in log.read_text()
+
+
+@pytest.mark.parametrize("content, args", [
+    (None, ()),                                   # missing file
+    ("", ()),                                     # empty file
+    ("vertices: [[0, 0\n", ()),                   # malformed
+    (None, ("-p", "iterations:=-3")),            # bad parameter, before any file is read
+])
+def test_bad_start_up_is_one_line_and_non_zero(tmp_path, content, args):
+    path = tmp_path / "character.yaml"
+    if content is not None:
+        path.write_text(content)
+    spec = "arm" if args else str(path)
+    res = subprocess.run(
+        _command("skin_node", "skin_node.node") + ["--ros-args", "-p", f"character:={spec}", *args],
+        env=_env(), cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert res.returncode != 0
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr
+    assert lines[0].startswith("skin_node: error: ")
+    assert (str(path) if not args else "iterations") in lines[0]
+
+
+def test_params_files_hold_only_declared_valid_parameters():
+    node_params = {"character", "surface_vertices", "pipeline", "frame_id", "name_map"}
+    for name in ("arm", "humanoid"):
+        params = yaml.safe_load((REPO / "config" / f"{name}.yaml").read_text())
+        params = params["skin_node"]["ros__parameters"]
+        assert params["character"] == name
+        assert set(params["pipeline"]) <= set(skin_node.STAGE_NAMES)
+        for key, value in params.items():
+            if key not in node_params:
+                skin_node.PIPELINE_PARAMS[key].check(key, value)
