@@ -333,7 +333,7 @@ class SkinNode(Node):
             stages = " ".join(f"{k} {v:.2f}" for k, v in self._timings.items() if k != "total")
             self.get_logger().info(
                 f"{period['frames']} frames/s | {values['ms_per_frame']:.2f} ms per frame "
-                f"({stages}) | receive->publish {values['ms_receive_to_publish']:.2f} ms | "
+                f"(last frame: {stages}) | receive->publish {values['ms_receive_to_publish']:.2f} ms | "
                 f"{message}")
 
     def stop(self) -> None:

@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# Create .venv (Python deps, rclpy and message packages from wheels: no ROS
+# install needed) and build skin_node with colcon into ./ws.
+# Re-running is cheap: pip runs only when the dependency list changed.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+DEPS=(
+  numpy numba scipy trimesh pyyaml scikit-image psutil
+  ros-jazzy-rclpy ros-jazzy-common-interfaces ros-jazzy-rmw-fastrtps-cpp
+  rosbags colcon-common-extensions pytest
+)
+PYTHON=${PYTHON:-python3}
+
+if [ ! -x .venv/bin/python ]; then
+  echo "setup: creating .venv with $($PYTHON --version)"
+  "$PYTHON" -m venv .venv
+fi
+stamp=.venv/.skin_node_deps
+if [ "$(cat "$stamp" 2>/dev/null)" != "${DEPS[*]}" ]; then
+  echo "setup: installing ${DEPS[*]}"
+  .venv/bin/python -m pip install --quiet --upgrade pip
+  .venv/bin/python -m pip install --quiet "${DEPS[@]}"
+  echo "${DEPS[*]}" > "$stamp"
+fi
+
+# --paths (not --base-paths): colcon must not crawl into .venv, whose wheels
+# carry package.xml files of their own.
+echo "setup: colcon build into ws/"
+.venv/bin/colcon --log-base ws/log build --paths . \
+  --build-base ws/build --install-base ws/install --event-handlers console_cohesion- \
+  > ws.build.log 2>&1 || { cat ws.build.log; exit 1; }
+rm -f ws.build.log
+echo "setup: installed ws/install/skin_node/lib/skin_node/{skin_node,mocap_player,skin_bag,skin_bench}"
