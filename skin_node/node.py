@@ -152,7 +152,7 @@ class SkinNode(Node):
         # One-slot mailbox between the callback and the worker.
         self._cond = threading.Condition()
         self._pending: tuple | None = None
-        self._param_updates: dict = {}
+        self._next: dict = {"pipe": None, "params": {}, "frame_id": None}
         self._stopping = False
 
         self._points_pub = self.create_publisher(PointCloud2, "skin/points", QOS_STREAM)
@@ -199,48 +199,42 @@ class SkinNode(Node):
     def _on_set_parameters(self, params: list) -> SetParametersResult:
         """Check a change; a valid one is applied by the worker before the next frame.
 
-        Types, ranges and read-only flags are enforced by the descriptors.
+        Types, ranges and read-only flags are enforced by the descriptors; the
+        core checks the rest (choices, stage order) by validating the values or,
+        for ``pipeline``, by building the new pipeline here.
         """
-        updates = {}
-        for param in params:
-            if param.name == "pipeline":
-                stages = list(param.value)
-                bad = [s for s in stages if s not in skin_node.STAGE_NAMES]
-                if not stages or bad:
-                    return SetParametersResult(
-                        successful=False,
-                        reason=f"pipeline needs stages from {list(skin_node.STAGE_NAMES)}, "
-                               f"got unknown {bad}" if bad else "pipeline must not be empty")
-            elif param.name == "frame_id" and not param.value:
-                return SetParametersResult(successful=False, reason="frame_id must not be empty")
-            elif param.name in skin_node.PIPELINE_PARAMS:
-                try:  # choices and cross-checks the descriptor cannot express
-                    skin_node.PIPELINE_PARAMS[param.name].check(param.name, param.value)
-                except ValueError as e:
-                    return SetParametersResult(successful=False, reason=str(e))
-            updates[param.name] = param.value
+        updates = {p.name: p.value for p in params}
+        core = {k: v for k, v in updates.items() if k in skin_node.PIPELINE_PARAMS}
+        try:
+            if updates.get("frame_id", "x") == "":
+                raise ValueError("frame_id must not be empty")
+            for k, v in core.items():
+                skin_node.PIPELINE_PARAMS[k].check(k, v)
+            kwargs = {**self._pipeline_kwargs, **core}
+            pipe = (skin_node.Pipeline(self.character, stages=list(updates["pipeline"]), **kwargs)
+                    if "pipeline" in updates else None)
+        except ValueError as e:
+            return SetParametersResult(successful=False, reason=str(e))
+        self._pipeline_kwargs = kwargs
         with self._cond:
-            self._param_updates.update(updates)
+            self._next["params"].update(core)
+            self._next["pipe"] = pipe or self._next["pipe"]
+            self._next["frame_id"] = updates.get("frame_id", self._next["frame_id"])
         return SetParametersResult(successful=True)
 
     def _apply_param_updates(self) -> None:
+        """Worker side: switch to what the set-parameters callback accepted."""
         with self._cond:
-            updates, self._param_updates = self._param_updates, {}
-        if not updates:
-            return
-        self._frame_id = updates.pop("frame_id", self._frame_id)
-        stages = updates.pop("pipeline", None)
-        core = {k: v for k, v in updates.items() if k in skin_node.PIPELINE_PARAMS}
-        try:
-            if stages is not None:
-                self._pipe = skin_node.Pipeline(self.character, stages=list(stages),
-                                                **{**self._pipeline_kwargs, **core})
-            elif core:
-                self._pipe.set_params(**core)
-            self._pipeline_kwargs.update(core)
-            self.get_logger().info(f"parameters applied: {sorted(core) + (['pipeline'] if stages else [])}")
-        except ValueError as e:
-            self.get_logger().error(f"parameter change not applied: {e}")
+            nxt, self._next = self._next, {"pipe": None, "params": {}, "frame_id": None}
+        if nxt["frame_id"] is not None:
+            self._frame_id = nxt["frame_id"]
+        if nxt["pipe"] is not None:
+            self._pipe = nxt["pipe"]
+        if nxt["params"]:
+            self._pipe.set_params(**nxt["params"])
+        if nxt["pipe"] is not None or nxt["params"]:
+            self.get_logger().info(f"parameters applied: stages {self._pipe.stage_names}, "
+                                   f"{sorted(nxt['params'])}")
 
     # ------------------------------------------------------------ callbacks
     def _on_joint_state(self, msg: JointState) -> None:

@@ -19,16 +19,12 @@ import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
 
 from msg_adapters import channels_to_joint_state, load_name_map
+from skin_node.node import QOS_JOINT_STATES
 
-# Matches skin_node's joint_states subscription (robot_state_publisher's QoS).
-QOS_JOINT_STATES = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                              reliability=ReliabilityPolicy.RELIABLE,
-                              durability=DurabilityPolicy.VOLATILE)
 
 
 def config_path(name: str) -> Path:

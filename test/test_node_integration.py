@@ -271,6 +271,7 @@ def test_parameters_mesh_marker_and_sigterm(tmp_path):
             assert ok(set_params(solver="newton")) == [False]            # not a choice
             r = set_params(pipeline=["dqs", "warp"])
             assert not r[0].successful and "warp" in r[0].reason
+            assert ok(set_params(pipeline=["pbd", "smooth"])) == [False]  # no skinning first
             assert ok(set_params(character="humanoid")) == [False]       # read-only
             assert ok(set_params(pipeline=["lbs", "smooth"])) == [True]
 
@@ -278,14 +279,14 @@ def test_parameters_mesh_marker_and_sigterm(tmp_path):
             channel_names = character_skeleton("arm").channel_names
             deadline = time.monotonic() + 20.0
             i = 0
-            while (not got["marker"] or not got["mesh"]) and time.monotonic() < deadline:
+            while not all(got.values()) and time.monotonic() < deadline:
                 if pub.get_subscription_count():
                     q = np.zeros(len(channel_names))
                     q[channel_names.index("elbow_rz")] = 0.05 * i
                     pub.publish(joint_state(10**9 + i * 10**7, channel_names, q))
                     i += 1
                 ex.spin_once(timeout_sec=0.1)
-            assert got["mesh"] and got["marker"], "no mesh or marker received"
+            assert all(got.values()), {k: len(v) for k, v in got.items()}
             n_vertices, n_triangles = len(got["mesh"][0].vertices), len(got["mesh"][0].triangles)
             marker = got["marker"][-1]
             assert marker.type == Marker.TRIANGLE_LIST and len(marker.points) == 3 * n_triangles
