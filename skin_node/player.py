@@ -34,7 +34,7 @@ def config_path(name: str) -> Path:
         path = Path(get_package_share_directory("skin_node")) / "config" / name
         if path.exists():
             return path
-    except (ImportError, LookupError, ValueError):
+    except (ImportError, LookupError, OSError):  # not installed, or no ament index set
         pass
     return Path(__file__).resolve().parents[1] / "config" / name
 

@@ -301,8 +301,18 @@ def test_parameters_mesh_marker_and_sigterm(tmp_path):
         assert time.monotonic() - t0 < 2.0
 
 
-def test_sigint_exits_cleanly(tmp_path):
+def test_mocap_player_drives_the_node_then_sigint_exits_cleanly(tmp_path):
     with arm_node(tmp_path) as (proc, env, log):
+        res = subprocess.run(
+            _command("mocap_player", "skin_node.player") + ["--character", "arm", "--frames",
+                                                            "60", "--rate", "0.5"],
+            env=env, cwd=REPO, capture_output=True, text=True, timeout=120)
+        assert res.returncode == 0, res.stderr
+        assert "playing 'elbow_bend'" in res.stderr and "sent 60 frames" in res.stderr
+        deadline = time.monotonic() + 5.0
+        while "frames/s" not in log.read_text() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert "frames/s" in log.read_text(), log.read_text()  # the per-second figure line
         t0 = time.monotonic()
         proc.send_signal(signal.SIGINT)
         assert proc.wait(5) == 0
@@ -341,3 +351,16 @@ def test_params_files_hold_only_declared_valid_parameters():
         for key, value in params.items():
             if key not in node_params:
                 skin_node.PIPELINE_PARAMS[key].check(key, value)
+
+
+def test_player_loads_builtin_clips_and_retargeted_bvh():
+    from skin_node.player import load_motion
+    name, names, frames, fps = load_motion("arm")
+    assert name == skin_node.default_clip_name("arm") and frames.shape == (len(frames), 12)
+    assert names == character_skeleton("arm").channel_names and fps > 0
+    bvh = REPO.parent / "shared" / "data" / "bvh" / "cmu_02_01_walk.bvh"
+    if not bvh.exists():
+        pytest.skip(f"CMU BVH not found at {bvh}")
+    name, names, frames, fps = load_motion("humanoid", bvh=str(bvh))
+    assert frames.shape == (344, 54) and fps == pytest.approx(120.0)
+    assert np.isfinite(frames).all()
