@@ -25,6 +25,8 @@ from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import JointState
 
+from skin_node.node import QOS_JOINT_STATES
+
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 #: Message type of each topic the node publishes; other topics need "topic=pkg/msg/Type".
 KNOWN_TOPICS = {
@@ -37,9 +39,6 @@ KNOWN_TOPICS = {
 QOS_RECORD = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                         reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.VOLATILE)
-QOS_PLAY = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                      reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.VOLATILE)
 
 
 def _message_class(type_name: str):
@@ -81,7 +80,7 @@ class BagRecorder(Node):
         typestore = get_typestore(Stores.ROS2_JAZZY)
         self.counts = {t: 0 for t in topics}
         self._writer, self._queue = writer, queue.SimpleQueue()
-        self.pub = self.create_publisher(JointState, "joint_states", QOS_PLAY)
+        self.pub = self.create_publisher(JointState, "joint_states", QOS_JOINT_STATES)
         self.subs = []
         for topic, type_name in topics.items():
             conn = writer.add_connection("/" + topic.lstrip("/"), type_name, typestore=typestore)

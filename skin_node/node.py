@@ -327,8 +327,8 @@ class SkinNode(Node):
             stages = " ".join(f"{k} {v:.2f}" for k, v in self._timings.items() if k != "total")
             self.get_logger().info(
                 f"{period['frames']} frames/s | {values['ms_per_frame']:.2f} ms per frame "
-                f"(last frame: {stages}) | receive->publish {values['ms_receive_to_publish']:.2f} ms | "
-                f"{message}")
+                f"(last frame: {stages}) | receive->publish "
+                f"{values['ms_receive_to_publish']:.2f} ms | {message}")
 
     def stop(self) -> None:
         """Stop the worker (it finishes the frame it is on)."""

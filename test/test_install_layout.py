@@ -24,7 +24,8 @@ def test_colcon_install_layout(tmp_path):
     for script in ("skin_node", "mocap_player", "skin_bag", "skin_bench"):
         exe = prefix / "lib" / "skin_node" / script
         assert exe.is_file() and os.access(exe, os.X_OK), exe
-    assert (prefix / "share" / "ament_index" / "resource_index" / "packages" / "skin_node").is_file()
+    index = prefix / "share" / "ament_index" / "resource_index" / "packages"
+    assert (index / "skin_node").is_file()
     assert (prefix / "share" / "skin_node" / "package.xml").is_file()
     for name in ("arm.yaml", "humanoid.yaml", "name_map_example.yaml"):
         assert (prefix / "share" / "skin_node" / "config" / name).is_file()
