@@ -294,12 +294,15 @@ class SkinNode(Node):
             self._marker_pub.publish(triangle_list_marker_cdr(V, self.character.F, header))
         self._processed += 1
         self._timings = dict(self._pipe.timings)
-        self._period["frames"] += 1
-        self._period["deform_ms"] += deform_ms
-        self._period["latency_ms"] += 1e3 * (time.perf_counter() - t_received)
+        with self._cond:
+            self._period["frames"] += 1
+            self._period["deform_ms"] += deform_ms
+            self._period["latency_ms"] += 1e3 * (time.perf_counter() - t_received)
 
     def _on_diagnostics_timer(self) -> None:
-        period, self._period = self._period, {"frames": 0, "deform_ms": 0.0, "latency_ms": 0.0}
+        with self._cond:
+            period, self._period = self._period, {"frames": 0, "deform_ms": 0.0,
+                                                  "latency_ms": 0.0}
         n = max(period["frames"], 1)
         unknown = self._mapper.unknown_counts
         rejected = {f"rejected_{r.value}": self._rejected[r.value] for r in Reason}

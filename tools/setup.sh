@@ -27,8 +27,8 @@ fi
 # --paths (not --base-paths): colcon must not crawl into .venv, whose wheels
 # carry package.xml files of their own.
 echo "setup: colcon build into ws/"
+mkdir -p ws
 .venv/bin/colcon --log-base ws/log build --paths . \
   --build-base ws/build --install-base ws/install --event-handlers console_cohesion- \
-  > ws.build.log 2>&1 || { cat ws.build.log; exit 1; }
-rm -f ws.build.log
+  > ws/colcon.out 2>&1 || { cat ws/colcon.out; exit 1; }
 echo "setup: installed ws/install/skin_node/lib/skin_node/{skin_node,mocap_player,skin_bag,skin_bench}"
