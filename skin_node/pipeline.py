@@ -29,10 +29,11 @@ PRESETS = {
     "dqs": (("dqs",), {}),
     # Abu Rumman & Fratarcangeli 2015: PBD without the energy constraint.
     "pbs": (("lbs", "pbd"), {"solver": "pbd", "constraints": ["stretch", "volume", "bind"],
-                             "active_regions": False}),
+                             "active_regions": False, "active_threshold": 0.0}),
     # Chen & Pan 2017 as published: LBS start, plain PBD, its four constraints.
     "paper": (("lbs", "pbd", "collision", "smooth"),
-              {"solver": "pbd", "active_regions": False, "collision_halfspace": False,
+              {"solver": "pbd", "active_regions": False, "active_threshold": 0.0,
+               "collision_halfspace": False, "collision_angle": 0.0,
                "collision_pushout": False,
                "collision_plane": "paper", "volume_preserve": False,
                "constraints": ["stretch", "volume", "bind", "energy"]}),
@@ -97,13 +98,20 @@ PIPELINE_PARAMS = {
     "energy_compliance": ParamSpec(float, 0.0, 0.0, 1e6, "XPBD compliance of energy springs"),
     "contact_angle": ParamSpec(float, 1.0, 0.0, 3.2,
                                "joints bent past this (rad) get a contact plane in the solve"),
+    "warm_start": ParamSpec(bool, False, description="start the solve from the last frame's "
+                            "correction, carried by each vertex's main bone"),
     "tolerance": ParamSpec(float, 0.0, 0.0, 1.0,
                            "stop iterating once no vertex moved more than this (m); 0 = never"),
     "active_regions": ParamSpec(bool, True, description="simulate only the zones of bent joints"),
-    "active_threshold": ParamSpec(float, 0.01, 0.0, 3.2,
-                                  "a joint counts as bent above this rotation (rad)"),
+    "active_threshold": ParamSpec(float, 0.35, 0.0, 3.2,
+                                  "a joint is simulated above this rotation (rad); below it "
+                                  "stage 1 is left as it is"),
+    "active_fade": ParamSpec(float, 0.2, 1e-3, 3.2, "corrections fade in over this much rotation "
+                             "past the threshold (rad), so nothing pops"),
     "threads": ParamSpec(int, 1, 1, 64, "threads of the colour-parallel solve (1 = sequential)"),
     "self_collision": ParamSpec(bool, True, description="run the collision stage"),
+    "collision_angle": ParamSpec(float, 1.0, 0.0, 3.2, "joints bent less than this (rad) cannot "
+                                 "fold skin onto skin and are not checked"),
     "collision_passes": ParamSpec(int, 8, 1, 20, "detect-and-resolve passes per joint"),
     "collision_pushout": ParamSpec(bool, True, description="after the plane projection, push "
                                    "each still-crossed vertex out in front of the skin it crossed"),
@@ -197,14 +205,17 @@ class Pipeline:
             raise ValueError("pose contains NaN or Inf")
         G = skel.world_matrices(q)
         M = G @ skel.bind_inv
-        bent = skel.joint_angles(q) > self.params["active_threshold"]
-        bent &= skel.parents >= 0
+        angles = skel.joint_angles(q)
+        fade = np.clip((angles - self.params["active_threshold"]) / self.params["active_fade"],
+                       0.0, 1.0)
+        fade[skel.parents < 0] = 0.0
+        bent = fade > 0.0
         Ms = M[self._seg_joint]
         A = np.einsum("sij,sj->si", Ms[:, :3, :3], self._segA) + Ms[:, :3, 3]
         B = np.einsum("sij,sj->si", Ms[:, :3, :3], self._segB) + Ms[:, :3, 3]
         s, t, sb, tb = self._buf
-        return Frame(q=q, G=G, M=M, bent=bent, surface=s, tet=t, surface_base=sb, tet_base=tb,
-                     seg_A=A, seg_B=B)
+        return Frame(q=q, G=G, M=M, bent=bent, fade=fade, angles=angles, surface=s, tet=t,
+                     surface_base=sb, tet_base=tb, seg_A=A, seg_B=B)
 
     def deform(self, q: np.ndarray) -> np.ndarray:
         """Deform the surface into pose ``q``.

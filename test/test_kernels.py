@@ -353,20 +353,8 @@ def test_degenerate_returns_zero_pbd(name):
     assert np.all(np.isfinite(dp)) and np.all(dp == 0.0)
 
 
-DEGENERATE_XPBD_BUG = ("with alpha > 0 and a zero gradient, _step returns -C/alpha - lam "
-                       "instead of 0 (den = wsum + alpha > eps), so the multiplier absorbs the "
-                       "whole violation without moving anything")
-
-
-@pytest.mark.parametrize("name", [
-    "stretch coincident", "bind on bone", "bind zero-length bone",
-    pytest.param("volume coincident", marks=pytest.mark.xfail(strict=True,
-                                                               reason=DEGENERATE_XPBD_BUG)),
-    pytest.param("volume collinear", marks=pytest.mark.xfail(strict=True,
-                                                              reason=DEGENERATE_XPBD_BUG)),
-    pytest.param("energy coincident", marks=pytest.mark.xfail(strict=True,
-                                                               reason=DEGENERATE_XPBD_BUG)),
-])
+@pytest.mark.parametrize("name", ["stretch coincident", "bind on bone", "bind zero-length bone",
+                                  "volume coincident", "volume collinear", "energy coincident"])
 def test_degenerate_returns_zero_xpbd(name):
     """'A degenerate gradient returns dlam = 0' holds with compliance too."""
     dlam, dp = DEGENERATE[name](1e-3)

@@ -29,13 +29,14 @@ _EPS = 1e-12
 
 @nb.njit(cache=True, inline="always")
 def _step(C, wsum, k, alpha, lam):
-    den = wsum + alpha
-    if den < _EPS:
+    # A vanishing gradient moves nothing, whatever the compliance: without this
+    # the multiplier would soak up the whole violation of a collapsed element.
+    if wsum < 1e-30:
         return 0.0
-    return k * (-C - alpha * lam) / den
+    return k * (-C - alpha * lam) / (wsum + alpha)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def stretch_constraint(X, i0, i1, w0, w1, rest, k, alpha, lam, dp):
     """Distance between two vertices: ``C = |p1 - p2| - d``.
 
@@ -75,7 +76,7 @@ def tet_volume(X, i1, i2, i3, i4):
     return (ux * cx + uy * cy + uz * cz) / 6.0
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def volume_constraint(X, t, w, rest, k, alpha, lam, dp):
     """Tet volume: ``C = (1/6) [(p1 - p2) x (p1 - p3)] . (p1 - p4) - V0``.
 
@@ -108,7 +109,7 @@ def volume_constraint(X, t, w, rest, k, alpha, lam, dp):
     return dlam
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def bind_constraint(X, i, w, ax, ay, az, bx, by, bz, rest, k, alpha, lam, dp):
     """Distance to the posed bone: ``C = |p - p'| - d``.
 
@@ -154,7 +155,7 @@ def energy_value(X, t, m, ks, rest):
     return C
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def energy_constraint(X, t, w, m, ks, rest, k, alpha, lam, dp):
     """Energy conservation (Chen & Pan 2017): springs from each vertex of a tet
     to its mass-weighted centroid ``p0 = sum m_i p_i / sum m_i``::
@@ -211,7 +212,7 @@ def scratch() -> np.ndarray:
     return np.zeros((4, 3))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def contact_constraint(X, i, w, cx, cy, cz, nx, ny, nz, dp):
     """One-sided contact with a plane: ``C = n . (p - c) >= 0``.
 

@@ -16,7 +16,7 @@ from .constraints import (bind_constraint, contact_constraint, energy_constraint
                           stretch_constraint, volume_constraint)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _stretch_range(X, w, E, rest, lam, idx, lo, hi, k, alpha, dp):
     for a in range(lo, hi):
         c = idx[a]
@@ -28,7 +28,7 @@ def _stretch_range(X, w, E, rest, lam, idx, lo, hi, k, alpha, dp):
             X[i1, d] += dp[1, d]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _volume_range(X, w, T, rest, lam, idx, lo, hi, k, alpha, dp):
     for a in range(lo, hi):
         c = idx[a]
@@ -40,7 +40,7 @@ def _volume_range(X, w, T, rest, lam, idx, lo, hi, k, alpha, dp):
                 X[t[b], d] += dp[b, d]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _energy_range(X, w, m, T, ks, rest, lam, idx, lo, hi, k, alpha, dp):
     for a in range(lo, hi):
         c = idx[a]
@@ -52,7 +52,57 @@ def _energy_range(X, w, m, T, ks, rest, lam, idx, lo, hi, k, alpha, dp):
                 X[t[b], d] += dp[b, d]
 
 
+@nb.njit(cache=True, inline="always")
+def _tet_range(X, w, m, T, ks, vrest, erest, vlam, elam, idx, lo, hi, kv, av, ke, ae, dp):
+    # Volume then energy per tet: one pass over the tets reads each tet's
+    # vertices once for both constraints (a valid Gauss-Seidel order too).
+    for a in range(lo, hi):
+        c = idx[a]
+        t = T[c]
+        dlam = volume_constraint(X, t, w, vrest[c], kv, av, vlam[c], dp)
+        vlam[c] += dlam
+        for b in range(4):
+            for d in range(3):
+                X[t[b], d] += dp[b, d]
+        dlam = energy_constraint(X, t, w, m, ks, erest[c], ke, ae, elam[c], dp)
+        elam[c] += dlam
+        for b in range(4):
+            for d in range(3):
+                X[t[b], d] += dp[b, d]
+
+
+@nb.njit(cache=True, parallel=True)
+def _tet_parallel(X, w, m, T, ks, vrest, erest, vlam, elam, idx, bounds, kv, av, ke, ae, nchunk):
+    for c in range(bounds.shape[0] - 1):
+        lo, hi = bounds[c], bounds[c + 1]
+        n = hi - lo
+        if n <= 0:
+            continue
+        nch = nchunk if n >= 64 * nchunk else 1
+        for h in nb.prange(nch):
+            dp = np.zeros((4, 3))
+            _tet_range(X, w, m, T, ks, vrest, erest, vlam, elam, idx, lo + (n * h) // nch,
+                       lo + (n * (h + 1)) // nch, kv, av, ke, ae, dp)
+
+
 @nb.njit(cache=True)
+def _tet_sequential(X, w, m, T, ks, vrest, erest, vlam, elam, idx, bounds, kv, av, ke, ae):
+    dp = np.zeros((4, 3))
+    _tet_range(X, w, m, T, ks, vrest, erest, vlam, elam, idx, bounds[0],
+               bounds[bounds.shape[0] - 1], kv, av, ke, ae, dp)
+
+
+def tet_sweep(X, w, m, T, ks, vrest, erest, vlam, elam, idx, bounds, kv, av, ke, ae,
+              threads: int) -> None:
+    """One sweep of the volume and energy constraints together, tet by tet."""
+    if threads > 1 and bounds.shape[0] > 2:
+        _tet_parallel(X, w, m, T, ks, vrest, erest, vlam, elam, idx, bounds, kv, av, ke, ae,
+                      threads)
+    else:
+        _tet_sequential(X, w, m, T, ks, vrest, erest, vlam, elam, idx, bounds, kv, av, ke, ae)
+
+
+@nb.njit(cache=True, inline="always")
 def _bind_range(X, w, seg, A, B, rest, lam, idx, lo, hi, k, alpha, dp):
     for a in range(lo, hi):
         i = idx[a]
@@ -162,8 +212,8 @@ def dqs(V, Widx, Wval, Q, out):
     """
     n, K = Widx.shape
     for i in nb.prange(n):
-        b = np.zeros(8)
         q0 = Q[Widx[i, 0]]
+        b0 = b1 = b2 = b3 = b4 = b5 = b6 = b7 = 0.0
         for a in range(K):
             wt = Wval[i, a]
             if wt == 0.0:
@@ -171,8 +221,15 @@ def dqs(V, Widx, Wval, Q, out):
             q = Q[Widx[i, a]]
             if q[0] * q0[0] + q[1] * q0[1] + q[2] * q0[2] + q[3] * q0[3] < 0.0:
                 wt = -wt
-            for c in range(8):
-                b[c] += wt * q[c]
+            b0 += wt * q[0]
+            b1 += wt * q[1]
+            b2 += wt * q[2]
+            b3 += wt * q[3]
+            b4 += wt * q[4]
+            b5 += wt * q[5]
+            b6 += wt * q[6]
+            b7 += wt * q[7]
+        b = (b0, b1, b2, b3, b4, b5, b6, b7)
         nr = np.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2] + b[3] * b[3])
         w0, x0, y0, z0 = b[0] / nr, b[1] / nr, b[2] / nr, b[3] / nr
         we, xe, ye, ze = b[4] / nr, b[5] / nr, b[6] / nr, b[7] / nr
@@ -207,18 +264,22 @@ def embed_update(base, X, Xbase, Etet, Ebary, out):
 
 
 @nb.njit(cache=True)
-def laplacian_smooth(X, verts, ptr, nbr, k, out):
-    """Jacobi Laplacian smoothing of ``verts`` only: ``p <- (1-k) p + k mean(one ring)``.
+def laplacian_smooth(X, verts, ptr, nbr, k, iterations, buf):
+    """Jacobi Laplacian smoothing of ``verts`` only, in place:
+    ``p <- (1-k) p + k mean(one ring)``, ``iterations`` times.
 
-    ``ptr``/``nbr`` is the one-ring adjacency in CSR form; ``out`` must start
-    as a copy of ``X`` (other vertices are left as they are)."""
-    for a in range(verts.shape[0]):
-        i = verts[a]
-        lo, hi = ptr[i], ptr[i + 1]
-        if hi == lo:
-            continue
-        for d in range(3):
-            s = 0.0
-            for b in range(lo, hi):
-                s += X[nbr[b], d]
-            out[i, d] = (1.0 - k) * X[i, d] + k * s / (hi - lo)
+    ``ptr``/``nbr`` is the one-ring adjacency in CSR form; ``buf`` (n,3) scratch.
+    Vertices outside ``verts`` are read but never moved."""
+    for _ in range(iterations):
+        for a in range(verts.shape[0]):
+            i = verts[a]
+            lo, hi = ptr[i], ptr[i + 1]
+            for d in range(3):
+                s = 0.0
+                for b in range(lo, hi):
+                    s += X[nbr[b], d]
+                buf[i, d] = (1.0 - k) * X[i, d] + k * s / max(hi - lo, 1)
+        for a in range(verts.shape[0]):
+            i = verts[a]
+            for d in range(3):
+                X[i, d] = buf[i, d]

@@ -16,7 +16,7 @@ from ..skeleton import Skeleton
 from .tetra import greedy_colour, lattice_for_count, signed_volumes, tet_edges
 from .weights import bone_distances, inverse_distance_weights, joint_radii, joint_regions
 
-RIG_VERSION = 5
+RIG_VERSION = 6
 
 
 @dataclass
@@ -42,7 +42,7 @@ class RigOptions:
 
     tet_count: int = 12000
     region_scale: float = 1.6
-    zone_weight: float = 0.01
+    zone_weight: float = 0.05
     weight_power: float = 4.0
     neighbours_only: bool = True
 
@@ -191,6 +191,9 @@ def build_rig(V: np.ndarray, F: np.ndarray, skel: Skeleton, opt: RigOptions,
     vol0 = signed_volumes(TV, T)
     mass = np.zeros(len(TV))
     np.add.at(mass, T.ravel(), np.repeat(np.abs(vol0) / 4.0, 4))
+    # Mean vertex mass 1: only mass ratios matter to the solve, and this keeps
+    # compliances in plain numbers whatever the lattice's cube size.
+    mass /= mass.mean()
     len0 = np.linalg.norm(TV[E[:, 0]] - TV[E[:, 1]], axis=1)
     mt = mass[T]
     centroid = (mt[..., None] * TV[T]).sum(1) / mt.sum(1, keepdims=True)

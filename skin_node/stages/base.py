@@ -18,6 +18,11 @@ class Frame:
         World matrices and skinning matrices ``G @ inv(B)``.
     bent : (J,) bool
         Joints whose pose rotation exceeds the active threshold.
+    fade : (J,) float
+        0 below the threshold, rising to 1 over the fade band: stages scale
+        their corrections by it so a joint that starts bending never pops.
+    angles : (J,) float
+        Rotation angle of every joint's pose rotation, radians.
     surface : (n, 3) float
         Current surface; stages update it in place.
     tet : (k, 3) float
@@ -34,6 +39,8 @@ class Frame:
     G: np.ndarray
     M: np.ndarray
     bent: np.ndarray
+    fade: np.ndarray
+    angles: np.ndarray
     surface: np.ndarray
     tet: np.ndarray
     surface_base: np.ndarray

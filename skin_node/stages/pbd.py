@@ -45,6 +45,9 @@ class PBD(Stage):
                     ((STRETCH, len(r.E)), (VOLUME, len(r.T)), (ENERGY, len(r.T)), (BIND, len(r.TV)))}
         self._key = self._zkey = None
         self._g = np.zeros((len(r.TV), 3))
+        # Warm start: last frame's correction in the frame of each vertex's main bone.
+        self._dom = r.TWidx[np.arange(len(r.TV)), np.argmax(r.TWval, axis=1)]
+        self._corr = np.zeros((len(r.TV), 3))
         self._contact_setup(character)
 
     def _contact_setup(self, character) -> None:
@@ -92,10 +95,8 @@ class PBD(Stage):
     def _contacts(self, fr: Frame):
         """Contact planes of the joints bent past ``contact_angle`` and the tet
         vertices of their folds (within the other side's flesh radius)."""
-        skel = self.character.skeleton
-        ang = skel.joint_angles(fr.q)
         idx, pof, planes = [], [], []
-        for j in np.flatnonzero(fr.bent & (ang > self.params["contact_angle"])):
+        for j in np.flatnonzero(fr.bent & (fr.angles > self.params["contact_angle"])):
             v = self.cverts[j]
             if not len(v):
                 continue
@@ -135,6 +136,7 @@ class PBD(Stage):
 
     def reset(self) -> None:
         self._key = None
+        self._corr[:] = 0.0
 
     def _active(self, bent: np.ndarray):
         """Index arrays of the constraints to solve and the inverse masses, cached
@@ -155,6 +157,7 @@ class PBD(Stage):
         edge = np.flatnonzero(vmask[r.E].any(axis=1))
         vert = np.flatnonzero(vmask)
         w = np.where(vmask, self.w_all, 0.0)       # zone borders are pinned to stage 1
+        self._corr[~vmask] = 0.0
         one = lambda a: (np.ascontiguousarray(a, dtype=np.int64),
                          np.array([0, len(a)], dtype=np.int64))
         if key[1]:
@@ -191,6 +194,11 @@ class PBD(Stage):
         tol = p["tolerance"]
         it = 0
         prev = X.copy() if tol > 0 else None
+        verts = sets[BIND][0]
+        if p["warm_start"]:
+            R = fr.M[self._dom[verts], :3, :3]
+            X[verts] += np.einsum("vij,vj->vi", R, self._corr[verts])
+        both = VOLUME in kinds and ENERGY in kinds
         for it in range(1, int(p["iterations"]) + 1):
             for kind in kinds:
                 idx, bounds = sets[kind]
@@ -198,6 +206,13 @@ class PBD(Stage):
                 # (a uniform k cancels out of C / |grad C|^2 otherwise).
                 k = k_of[kind] if (not xpbd or kind == ENERGY) else 1.0
                 alpha = a_of[kind] if xpbd else 0.0
+                if both and kind == ENERGY:
+                    continue
+                if both and kind == VOLUME:
+                    solver.tet_sweep(X, w, self.mass, r.T, ks, r.vol0, r.erest, self.lam[VOLUME],
+                                     self.lam[ENERGY], idx, bounds, k, alpha, k_of[ENERGY],
+                                     a_of[ENERGY] if xpbd else 0.0, threads)
+                    continue
                 solver.sweep(kind, X, w, self.mass, r.E, r.T, ks, r.bseg, fr.seg_A, fr.seg_B,
                              r.len0 if kind == STRETCH else r.vol0 if kind == VOLUME
                              else r.brest, r.erest, self.lam[kind], idx, bounds, k, alpha, threads)
@@ -212,6 +227,14 @@ class PBD(Stage):
                 prev[:] = X
         fr.counts["active_tets"] = len(sets[VOLUME][0])
         fr.counts["iterations"] = it
+        if p["warm_start"]:
+            R = fr.M[self._dom[verts], :3, :3]
+            self._corr[verts] = np.einsum("vji,vj->vi", R, X[verts] - fr.tet_base[verts])
+        f = fr.fade
+        if p["active_regions"] and np.any((f > 0) & (f < 1)):
+            # Joints still in their fade band pass on only part of the correction.
+            zf = (self.rig.zone[verts][:, fr.bent] * f[fr.bent]).max(axis=1)
+            X[verts] = fr.tet_base[verts] + zf[:, None] * (X[verts] - fr.tet_base[verts])
         solver.embed_update(fr.surface_base, X, fr.tet_base, r.Etet, r.Ebary, fr.surface)
 
 

@@ -35,8 +35,6 @@ class Smooth(Stage):
         vs = self.verts(fr.bent)
         if k <= 0 or n <= 0 or len(vs) == 0:
             return
-        X, out = fr.surface, self._buf
-        for _ in range(n):
-            out[vs] = X[vs]
-            laplacian_smooth(X, vs, self.ptr, self.adj, k, out)
-            X[vs] = out[vs]
+        # strength fades in with the joints' fade (no pop when a joint starts bending)
+        kf = k * float(fr.fade[fr.bent].max())
+        laplacian_smooth(fr.surface, vs, self.ptr, self.adj, kf, n, self._buf)

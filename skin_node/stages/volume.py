@@ -23,20 +23,28 @@ from .collision import JointRegions
 
 
 @nb.njit(cache=True)
-def volume_gradient(X, F, g):
-    """``g_i = dV/dp_i = (1/6) sum over faces (a, b, c) with a = i of p_b x p_c``."""
-    g[:] = 0.0
+def volume_and_gradient(X, F, inc_ptr, inc, verts, g):
+    """Enclosed volume of the whole mesh, and ``g_i = dV/dp_i`` for ``verts`` only:
+    ``(1/6) sum over the faces (i, b, c) around i of p_b x p_c``."""
     vol = 0.0
     for f in range(F.shape[0]):
-        for e in range(3):
-            a, b, c = F[f, e], F[f, (e + 1) % 3], F[f, (e + 2) % 3]
-            g[a, 0] += (X[b, 1] * X[c, 2] - X[b, 2] * X[c, 1]) / 6.0
-            g[a, 1] += (X[b, 2] * X[c, 0] - X[b, 0] * X[c, 2]) / 6.0
-            g[a, 2] += (X[b, 0] * X[c, 1] - X[b, 1] * X[c, 0]) / 6.0
         a, b, c = F[f, 0], F[f, 1], F[f, 2]
         vol += (X[a, 0] * (X[b, 1] * X[c, 2] - X[b, 2] * X[c, 1])
                 + X[a, 1] * (X[b, 2] * X[c, 0] - X[b, 0] * X[c, 2])
                 + X[a, 2] * (X[b, 0] * X[c, 1] - X[b, 1] * X[c, 0])) / 6.0
+    for k in range(verts.shape[0]):
+        i = verts[k]
+        gx = gy = gz = 0.0
+        for q in range(inc_ptr[i], inc_ptr[i + 1]):
+            f = inc[q]
+            e = 0
+            while F[f, e] != i:
+                e += 1
+            b, c = F[f, (e + 1) % 3], F[f, (e + 2) % 3]
+            gx += X[b, 1] * X[c, 2] - X[b, 2] * X[c, 1]
+            gy += X[b, 2] * X[c, 0] - X[b, 0] * X[c, 2]
+            gz += X[b, 0] * X[c, 1] - X[b, 1] * X[c, 0]
+        g[k, 0], g[k, 1], g[k, 2] = gx / 6.0, gy / 6.0, gz / 6.0
     return vol
 
 
@@ -61,36 +69,45 @@ class Volume(Stage):
         for j in range(1, J):
             s = (r.Wval * below[j][r.Widx]).sum(1)
             self.mobility[:, j] = 4.0 * s * (1.0 - s)
-            z = np.flatnonzero(self.mobility[:, j] > 1e-3)
+            z = np.flatnonzero(self.mobility[:, j] > 0.02)
             self.zone.append(z)
             self.side.append((s[z] > 0.5).astype(np.int64))
         self.F = character.F
         self.V0 = mesh_volume(character.V, character.F)
         self.regions = JointRegions(character)
-        self._g = np.zeros_like(character.V)
+        # vertex -> incident faces, CSR
+        F = character.F
+        order = np.argsort(F.ravel(), kind="stable")
+        self.inc = (order // 3).astype(np.int64)
+        self.inc_ptr = np.searchsorted(F.ravel()[order], np.arange(len(character.V) + 1))
+        self._key, self._verts = None, None
 
     def __call__(self, fr: Frame) -> None:
         js = np.flatnonzero(fr.bent)
         if not len(js) or not self.params["volume_preserve"]:
             return
+        key = fr.bent.tobytes()
+        if key != self._key:
+            self._key = key
+            self._verts = np.unique(np.concatenate([self.zone[j] for j in js]))
+        v = self._verts
         X = fr.surface
-        m = self.mobility[:, js].max(axis=1)
+        m = (self.mobility[v][:, js] * fr.fade[js]).max(axis=1)
         for j in js:
             # The fold stays where collision put it: no inflation within the other
             # side's flesh radius, fading in up to 1.5 times that radius.
             z, side = self.zone[j], self.side[j]
+            loc = np.searchsorted(v, z)
             A, B = self.regions.posed_segments(j, fr.M)
             for s_ in (0, 1):
                 o = 1 - s_
-                zs = z[side == s_]
-                d = point_segment_distance(X[zs], A[o:o + 1], B[o:o + 1])[:, 0]
+                sel = side == s_
+                d = point_segment_distance(X[z[sel]], A[o:o + 1], B[o:o + 1])[:, 0]
                 R = max(self.regions.R[j, o], 1e-9)
-                m[zs] *= np.clip((d / R - 1.0) / 0.5, 0.0, 1.0)
-        for _ in range(2):
-            vol = volume_gradient(X, self.F, self._g)
-            g = self._g
-            den = float((m * (g * g).sum(1)).sum())
-            if den <= 0.0:
-                return
-            X -= ((vol - self.V0) / den) * m[:, None] * g
+                m[loc[sel]] *= np.clip((d / R - 1.0) / 0.5, 0.0, 1.0)
+        g = np.empty((len(v), 3))
+        vol = volume_and_gradient(X, self.F, self.inc_ptr, self.inc, v, g)
+        den = float((m * (g * g).sum(1)).sum())
+        if den > 0.0:
+            X[v] -= ((vol - self.V0) / den) * m[:, None] * g
         fr.counts["volume_ratio"] = vol / self.V0

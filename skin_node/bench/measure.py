@@ -1,0 +1,563 @@
+"""Speed and accuracy of a pipeline on a scene over a motion, frame by frame.
+
+Definitions (what every column of the output means)
+---------------------------------------------------
+Scene
+    ``character:surface_vertices[:tets]``, e.g. ``arm:6000`` or ``arm:6000:24000``.
+Timing
+    ``pipe.timings`` of every frame (ms per stage and ``total``), reported as
+    median (p50) and 90th percentile (p90). Before the timed frames the pipeline
+    deforms a few warm-up poses (rest, first, deepest and last frame of the
+    motion) so numba compilation or cache loading never lands in a timed frame;
+    that warm-up time and the set-up time (character + rig load, pipeline
+    construction) are reported apart, in seconds.
+``volume_ratio``
+    Enclosed volume of the deformed surface over the rest volume.
+``region_volume_ratio``
+    For the most bent joint of the frame: the volume of the cone from the
+    joint's *posed* centre over the triangles of its joint region
+    (:func:`skin_node.metrics.region_volume`; the centre moves with the joint,
+    so a rigid motion keeps the ratio at 1), over the same at rest.
+``dev_min_mm`` / ``dev_max_mm``
+    Deviation from the rigidly posed parts, by the radial proxy: every vertex
+    is bound at rest to the bone segment nearest to it and its rest distance
+    ``r0`` to that segment is kept; in a pose the deviation is the distance of
+    the deformed vertex to the same segment, posed rigidly, minus ``r0`` (mm).
+    Most negative = collapse (candy wrapper, elbow pinch), most positive =
+    bulge. Skin pressed flat where two limbs touch also reads as negative.
+``crossings``
+    Joint-region vertices that have passed through the skin
+    (:func:`skin_node.stages.collision.count_crossings`).
+``roughness_mm``
+    Mean umbrella-Laplacian length over all joint-region vertices
+    (:func:`skin_node.metrics.roughness`), mm; its rest value is in the summary.
+``inverted_tets`` / ``inverted_skin_tets``
+    Tets whose signed volume flipped sign since rest, all of them / only those
+    that embed surface vertices (0 for skinning-only pipelines).
+``ref_mean_mm`` / ``ref_max_mm``
+    Mean / largest vertex distance to a converged reference: the same scene
+    with twice the tets, the same pipeline with ``iterations = 60`` and
+    ``active_threshold = 0``, on a subsample of the frames. Pipelines that only
+    skin (``lbs``, ``dqs``) do not depend on either setting: their distance is
+    0 by construction and is not computed.
+"""
+from __future__ import annotations
+
+import json
+import sys
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .. import load_character, make_clip
+from ..metrics import mesh_volume, region_volume
+from ..pipeline import PRESETS, STAGE_NAMES, Pipeline
+from ..stages.collision import JointRegions, count_crossings
+
+#: Skinning-only stages: iterations, tets and active_threshold do not change their result.
+SKIN_ONLY = {"lbs", "dqs"}
+
+
+# --------------------------------------------------------------------- progress
+class Progress:
+    """A plain progress bar on stderr (``\\r`` updates on a terminal, a line
+    every quarter otherwise); silent when ``enabled`` is False."""
+
+    def __init__(self, total: int, label: str = "", enabled: bool = True,
+                 stream=None) -> None:
+        self.total, self.label, self.enabled = max(int(total), 1), label, enabled
+        self.stream = stream or sys.stderr
+        self.n = 0
+        self.t0 = self._last = time.perf_counter()
+        self._tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self._quarter = -1
+
+    def update(self, n: int = 1, label: str | None = None) -> None:
+        self.n += n
+        if label is not None:
+            self.label = label
+        if not self.enabled:
+            return
+        now = time.perf_counter()
+        frac = min(self.n / self.total, 1.0)
+        if self._tty:
+            if now - self._last < 0.2 and self.n < self.total:
+                return
+            bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
+            eta = (now - self.t0) * (1 - frac) / max(frac, 1e-9)
+            self.stream.write(f"\r[{bar}] {100 * frac:5.1f}% eta {eta:5.0f}s {self.label[:40]:40s}")
+            self.stream.flush()
+        elif int(4 * frac) > self._quarter:
+            self._quarter = int(4 * frac)
+            self.stream.write(f"[{100 * frac:3.0f}%] {now - self.t0:6.1f}s {self.label}\n")
+            self.stream.flush()
+        self._last = now
+
+    def close(self) -> None:
+        if self.enabled and self._tty:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+# ----------------------------------------------------------------------- scenes
+@dataclass(frozen=True)
+class Scene:
+    """A character at a density: ``arm:6000`` or ``arm:6000:24000`` (tets)."""
+
+    character: str
+    surface_vertices: int
+    tets: int | None = None
+
+    @property
+    def label(self) -> str:
+        return f"{self.character}:{self.surface_vertices}" + (f":{self.tets}" if self.tets else "")
+
+    def with_tets(self, tets: int | None) -> "Scene":
+        return replace(self, tets=tets)
+
+
+def parse_scene(spec: str) -> Scene:
+    """``"arm:6000"`` / ``"arm:6000:24000"`` / ``"humanoid"`` -> :class:`Scene`."""
+    parts = str(spec).split(":")
+    if not parts[0] or len(parts) > 3:
+        raise ValueError(f"scene '{spec}': expected character[:surface_vertices[:tets]]")
+    try:
+        n = int(parts[1]) if len(parts) > 1 and parts[1] else 0
+        t = int(parts[2]) if len(parts) > 2 and parts[2] else None
+    except ValueError:
+        raise ValueError(f"scene '{spec}': vertex and tet counts must be integers") from None
+    return Scene(parts[0], n, t)
+
+
+_SCENES: dict = {}
+
+
+def load_scene(scene: Scene, cache: bool = True):
+    """The scene's :class:`~skin_node.Character` and its set-up time in seconds
+    (memoised in this process; the set-up time is that of the first load)."""
+    if scene not in _SCENES:
+        t0 = time.perf_counter()
+        ch = load_character(scene.character, surface_vertices=scene.surface_vertices or None,
+                            tet_count=scene.tets, cache=cache, progress=False)
+        _SCENES[scene] = (ch, time.perf_counter() - t0)
+    return _SCENES[scene]
+
+
+def reference_scene(scene: Scene) -> Scene:
+    """The same surface with twice the tets of ``scene``."""
+    ch, _ = load_scene(scene)
+    return scene.with_tets(2 * int(ch.options.tet_count))
+
+
+# ---------------------------------------------------------------------- methods
+@dataclass(frozen=True)
+class Method:
+    """A named pipeline: stage list and parameters."""
+
+    name: str
+    stages: tuple
+    params: tuple = ()            # sorted (key, value) pairs, values JSON-able
+
+    @property
+    def param_dict(self) -> dict:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.params}
+
+    @property
+    def simulates(self) -> bool:
+        """True when the result depends on iterations / tets (anything past skinning)."""
+        return not set(self.stages) <= SKIN_ONLY
+
+    def with_params(self, label: bool = True, **params) -> "Method":
+        """A copy with ``params`` added; its name gets ``[k=v,...]`` when ``label``."""
+        p = {**self.param_dict, **params}
+        name = self.name
+        if label and params:
+            name += "[" + ",".join(f"{k}={v}" for k, v in params.items()) + "]"
+        return Method(name, self.stages, _freeze(p))
+
+    def build(self, character) -> Pipeline:
+        return Pipeline(character, list(self.stages), **self.param_dict)
+
+    def to_json(self) -> dict:
+        return {"name": self.name, "stages": list(self.stages), "params": self.param_dict}
+
+
+def _freeze(p: dict) -> tuple:
+    return tuple(sorted((k, tuple(v) if isinstance(v, list) else v) for k, v in p.items()))
+
+
+def parse_method(spec) -> Method:
+    """A preset name (``lbs``, ``dqs``, ``pbs``, ``paper``, ``default``) or a JSON
+    dict ``{"name": ..., "preset": ..., "stages": [...], "params": {...}}``
+    (``preset`` supplies stages and parameters that the others override)."""
+    if isinstance(spec, Method):
+        return spec
+    if isinstance(spec, str) and not spec.lstrip().startswith("{"):
+        if spec not in PRESETS:
+            raise ValueError(f"unknown pipeline '{spec}'; presets are {list(PRESETS)} "
+                             "or give a JSON dict of stages and params")
+        stages, params = PRESETS[spec]
+        return Method(spec, tuple(stages), _freeze(params))
+    d = json.loads(spec) if isinstance(spec, str) else dict(spec)
+    base = parse_method(d["preset"]) if "preset" in d else Method("custom", ())
+    stages = tuple(d.get("stages", base.stages))
+    if not stages:
+        raise ValueError(f"pipeline {d}: needs 'stages' or 'preset'")
+    params = {**base.param_dict, **d.get("params", {})}
+    name = d.get("name") or (base.name if "preset" in d and "stages" not in d else "+".join(stages))
+    bad = [st for st in stages if st not in STAGE_NAMES]
+    if bad:
+        raise ValueError(f"pipeline {d}: unknown stage(s) {bad}; stages are {list(STAGE_NAMES)}")
+    return Method(str(name), stages, _freeze(params))
+
+
+# ---------------------------------------------------------------------- motions
+@dataclass
+class Motion:
+    """Poses to deform in order; ``x`` is the swept angle in degrees for pose sweeps."""
+
+    name: str
+    frames: np.ndarray
+    x: np.ndarray | None = None
+    fps: float = 120.0
+
+
+#: Pose sweeps on the arm: (channel, last angle in degrees).
+SWEEPS = {"elbow_sweep": ("elbow_rz", 180.0), "twist_sweep": ("wrist_rx", 360.0)}
+
+
+def make_motion(name: str, character, steps: int = 37, stride: int = 1,
+                max_frames: int | None = None) -> Motion | None:
+    """A clip by name (:data:`skin_node.CLIP_NAMES`) or a pose sweep
+    (``elbow_sweep``: elbow 0..180 degrees, ``twist_sweep``: wrist twist
+    0..360 degrees, ``steps`` poses); None if the character lacks its channels.
+    Clips keep every ``stride``-th frame, at most ``max_frames``."""
+    skel = character.skeleton
+    if name in SWEEPS:
+        chan, top = SWEEPS[name]
+        if chan not in skel.channel_names:
+            return None
+        x = np.linspace(0.0, top, steps)
+        frames = np.stack([skel.pose(**{chan: np.radians(a)}) for a in x])
+        return Motion(name, frames, x)
+    try:
+        clip = make_clip(name, skel)
+    except ValueError:
+        return None
+    frames = clip.frames[::max(1, stride)]
+    if max_frames:
+        frames = frames[:max_frames]
+    return Motion(name, frames, None, clip.fps / max(1, stride))
+
+
+# ---------------------------------------------------------------------- metrics
+def segment_distance(P: np.ndarray, A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Row-wise distance of points ``P`` (n,3) to segments ``A``-``B`` (n,3)."""
+    d = B - A
+    t = np.einsum("ij,ij->i", P - A, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-30)
+    t = np.clip(t, 0.0, 1.0)
+    return np.linalg.norm(P - (A + t[:, None] * d), axis=1)
+
+
+def tet_volumes(X: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """Signed volumes of tets ``T`` over vertices ``X``, in the convention of
+    ``rig.vol0``: ``(1/6) [(p1 - p2) x (p1 - p3)] . (p1 - p4)``."""
+    p1, p2, p3, p4 = (X[T[:, a]] for a in range(4))
+    return np.einsum("ij,ij->i", np.cross(p1 - p2, p1 - p3), p1 - p4) / 6.0
+
+
+def inverted_tets(X: np.ndarray, character, skin_only: bool = False) -> int:
+    """Tets whose signed volume has a different sign now than at rest; with
+    ``skin_only`` only the tets that embed surface vertices (an inverted one
+    turns the skin it carries inside out)."""
+    r = character.rig
+    flipped = np.sign(tet_volumes(X, r.T)) != np.sign(r.vol0)
+    if skin_only:
+        flipped = flipped[np.unique(r.Etet)]
+    return int(np.count_nonzero(flipped))
+
+
+class SceneMetrics:
+    """Accuracy measures of deformed surfaces of one character (precomputed rest data).
+
+    Parameters
+    ----------
+    character : Character
+    """
+
+    def __init__(self, character) -> None:
+        ch = self.character = character
+        skel, r = ch.skeleton, ch.rig
+        self.F = ch.F
+        self.V0 = mesh_volume(ch.V, ch.F)
+        self.regions = JointRegions(ch)
+        # joint-region volumes at rest, about each joint's rest position
+        self.region_joints = np.array([j for j in range(skel.n_joints)
+                                       if skel.parents[j] >= 0 and len(self.regions.tris[j])])
+        self.region_rest = {int(j): region_volume(ch.V, ch.F, self.regions.tris[j],
+                                                  skel.rest_positions[j])
+                            for j in self.region_joints}
+        # radial-deviation proxy: nearest rest bone segment and rest distance
+        seg_joint, A, B = skel.bone_segments()
+        D = np.stack([segment_distance(ch.V, np.broadcast_to(A[s], ch.V.shape),
+                                       np.broadcast_to(B[s], ch.V.shape))
+                      for s in range(len(A))], axis=1)
+        self.seg = np.argmin(D, axis=1)
+        self.r0 = D[np.arange(len(ch.V)), self.seg]
+        # joint-region roughness, as metrics.roughness, with the index arrays built once
+        verts = np.flatnonzero(r.region >= 0)
+        ptr, nbr = r.adj_ptr, r.adj
+        counts = ptr[verts + 1] - ptr[verts]
+        self._rverts = verts
+        self._rrows = np.repeat(np.arange(len(verts)), counts)
+        self._rcols = (np.concatenate([nbr[ptr[i]:ptr[i + 1]] for i in verts])
+                       if len(verts) else np.zeros(0, np.int64))
+        self._rcount = np.maximum(counts, 1)[:, None]
+        self.roughness_rest_mm = self.roughness(ch.V) * 1e3
+
+    def roughness(self, V: np.ndarray) -> float:
+        """:func:`skin_node.metrics.roughness` over all joint-region vertices, m."""
+        if not len(self._rverts):
+            return 0.0
+        mean = np.zeros((len(self._rverts), 3))
+        np.add.at(mean, self._rrows, V[self._rcols])
+        mean /= self._rcount
+        return float(np.linalg.norm(mean - V[self._rverts], axis=1).mean())
+
+    def deviation_mm(self, V: np.ndarray, seg_A: np.ndarray, seg_B: np.ndarray) -> np.ndarray:
+        """Per-vertex signed radial deviation (mm) from the rigidly posed bones
+        ``seg_A, seg_B`` (posed :meth:`Skeleton.bone_segments`, e.g. ``frame.seg_A``)."""
+        return (segment_distance(V, seg_A[self.seg], seg_B[self.seg]) - self.r0) * 1e3
+
+    def region_ratio(self, V: np.ndarray, G: np.ndarray, j: int) -> float:
+        """Joint ``j``'s region volume now (about its posed centre) over at rest."""
+        return region_volume(V, self.F, self.regions.tris[j], G[j, :3, 3]) / self.region_rest[int(j)]
+
+    def measure(self, V: np.ndarray, frame, crossings: bool = True) -> dict:
+        """All per-frame accuracy measures of surface ``V`` deformed in ``frame``
+        (``pipe.last_frame``)."""
+        dev = self.deviation_mm(V, frame.seg_A, frame.seg_B)
+        out = {"volume_ratio": mesh_volume(V, self.F) / self.V0,
+               "dev_min_mm": float(dev.min()), "dev_max_mm": float(dev.max()),
+               "roughness_mm": self.roughness(V) * 1e3}
+        if len(self.region_joints):
+            j = int(self.region_joints[np.argmax(frame.angles[self.region_joints])])
+            out["region_joint"] = self.character.skeleton.names[j]
+            out["region_volume_ratio"] = self.region_ratio(V, frame.G, j)
+        out["crossings"] = (count_crossings(V, self.character.V, self.F, frame.M, self.regions)
+                            if crossings else np.nan)
+        return out
+
+
+_METRICS: dict = {}
+
+
+def scene_metrics(scene: Scene) -> SceneMetrics:
+    if scene not in _METRICS:
+        _METRICS[scene] = SceneMetrics(load_scene(scene)[0])
+    return _METRICS[scene]
+
+
+# -------------------------------------------------------------------------- runs
+def percentiles(values, qs=(50, 90)) -> list:
+    v = np.asarray(values, dtype=float)
+    return [float(np.percentile(v, q)) if v.size else float("nan") for q in qs]
+
+
+@dataclass
+class RunResult:
+    """Per-frame rows and a summary of one (method, scene, motion) run."""
+
+    method: Method
+    scene: Scene
+    motion: str
+    rows: list = field(default_factory=list)
+    summary: dict = field(default_factory=dict)
+
+
+def _warm_up(pipe: Pipeline, frames: np.ndarray, character) -> float:
+    """Deform rest, first, deepest and last pose; the seconds it took."""
+    skel = character.skeleton
+    depth = [skel.joint_angles(q).max() for q in frames]
+    t0 = time.perf_counter()
+    for q in (skel.rest_pose(), frames[0], frames[int(np.argmax(depth))], frames[-1]):
+        pipe.deform(q)
+    dt = time.perf_counter() - t0
+    pipe.set_params()                 # forget state carried between frames
+    return dt
+
+
+def run_method(method: Method, scene: Scene, motion: Motion, reference: bool = True,
+               ref_frames: int = 8, crossings_every: int = 1,
+               progress: Progress | None = None) -> RunResult:
+    """Deform ``motion`` with ``method`` on ``scene``; time and measure every frame.
+
+    Parameters
+    ----------
+    reference : bool
+        Also measure the distance to the converged reference (on ``ref_frames``
+        evenly spaced frames, plus the deepest one).
+    crossings_every : int
+        Count crossings on every n-th frame only (0 = never); the rest get NaN.
+
+    Returns
+    -------
+    RunResult
+    """
+    ch, load_s = load_scene(scene)
+    metrics = scene_metrics(scene)
+    t0 = time.perf_counter()
+    pipe = method.build(ch)
+    build_s = time.perf_counter() - t0
+    warm_s = _warm_up(pipe, motion.frames, ch)
+    skel = ch.skeleton
+    T = len(motion.frames)
+    depth = np.array([skel.joint_angles(q).max() for q in motion.frames])
+    ref_at = set()
+    ref_pipe, ref_warm = None, 0.0
+    if reference and method.simulates and ref_frames > 0:
+        ref_at = set(np.linspace(0, T - 1, ref_frames).round().astype(int).tolist())
+        ref_at.add(int(np.argmax(depth)))
+        rscene = reference_scene(scene)
+        rch, _ = load_scene(rscene)
+        ref_pipe = method.with_params(label=False, iterations=60, active_threshold=0.0).build(rch)
+        ref_warm = _warm_up(ref_pipe, motion.frames[:1], rch)
+    rows, times = [], {}
+    for t, q in enumerate(motion.frames):
+        V = pipe.deform(q)
+        for k, v in pipe.timings.items():
+            times.setdefault(k, []).append(v)
+        fr = pipe.last_frame
+        row = {"frame": t, "x": float(motion.x[t]) if motion.x is not None else float(t),
+               "angle_max_deg": float(np.degrees(depth[t])),
+               **{f"ms_{k}": v for k, v in pipe.timings.items()},
+               **metrics.measure(V, fr, crossings=bool(crossings_every) and
+                                 t % max(crossings_every, 1) == 0),
+               **{f"count_{k}": v for k, v in pipe.counts.items()
+                  if isinstance(v, (int, float, np.integer, np.floating))}}
+        row["inverted_tets"] = inverted_tets(fr.tet, ch) if method.simulates else 0
+        row["inverted_skin_tets"] = (inverted_tets(fr.tet, ch, skin_only=True)
+                                     if method.simulates else 0)
+        if not method.simulates:
+            row["ref_mean_mm"] = row["ref_max_mm"] = 0.0
+        elif t in ref_at:
+            R = ref_pipe.deform(q)
+            d = np.linalg.norm(V - R, axis=1) * 1e3
+            row["ref_mean_mm"], row["ref_max_mm"] = float(d.mean()), float(d.max())
+        else:
+            row["ref_mean_mm"] = row["ref_max_mm"] = float("nan")
+        rows.append(row)
+        if progress is not None:
+            progress.update(1)
+    res = RunResult(method, scene, motion.name, rows)
+    res.summary = summarize(res, load_s=load_s, build_s=build_s, warm_s=warm_s,
+                            ref_warm_s=ref_warm, times=times, roughness_rest_mm=
+                            metrics.roughness_rest_mm, tets=len(ch.rig.T),
+                            vertices=len(ch.V))
+    return res
+
+
+def summarize(res: RunResult, times: dict, **extra) -> dict:
+    """One summary row of a run: timing percentiles and accuracy extremes."""
+    rows = res.rows
+    col = lambda k: np.array([r.get(k, np.nan) for r in rows], dtype=float)  # noqa: E731
+    s = {"method": res.method.name, "scene": res.scene.label, "motion": res.motion,
+         "frames": len(rows), "stages": "+".join(res.method.stages),
+         "params": json.dumps(res.method.param_dict, sort_keys=True),
+         "setup_s": extra.pop("load_s") + extra.pop("build_s"),
+         "warmup_s": extra.pop("warm_s"), "ref_warmup_s": extra.pop("ref_warm_s")}
+    s.update(extra)
+    for k, v in times.items():
+        p50, p90 = percentiles(v)
+        s[f"ms_{k}_p50"], s[f"ms_{k}_p90"] = p50, p90
+    deep = int(np.nanargmax(col("angle_max_deg"))) if rows else 0
+    vr, rr = col("volume_ratio"), col("region_volume_ratio")
+    s.update({
+        "deepest_angle_deg": float(col("angle_max_deg")[deep]),
+        "volume_ratio_deepest": float(vr[deep]),
+        "volume_ratio_min": float(np.nanmin(vr)), "volume_ratio_max": float(np.nanmax(vr)),
+        "volume_error_max": float(np.nanmax(np.abs(vr - 1.0))),
+        "region_volume_ratio_deepest": float(rr[deep]),
+        "region_volume_error_max": float(np.nanmax(np.abs(rr - 1.0))),
+        "collapse_mm": float(np.nanmin(col("dev_min_mm"))),
+        "bulge_mm": float(np.nanmax(col("dev_max_mm"))),
+        "crossings_max": float(np.nanmax(col("crossings"))) if np.isfinite(col("crossings")).any()
+        else float("nan"),
+        "roughness_mm_max": float(np.nanmax(col("roughness_mm"))),
+        "inverted_tets_max": float(np.nanmax(col("inverted_tets"))),
+        "inverted_skin_tets_max": float(np.nanmax(col("inverted_skin_tets"))),
+        "ref_mean_mm": float(np.nanmean(col("ref_mean_mm"))) if np.isfinite(col("ref_mean_mm")).any()
+        else float("nan"),
+        "ref_max_mm": float(np.nanmax(col("ref_max_mm"))) if np.isfinite(col("ref_max_mm")).any()
+        else float("nan"),
+    })
+    return s
+
+
+def expand_methods(methods, iterations=None, stiffness=None) -> list:
+    """Every method, times every sweep value that applies to it (iterations and
+    stiffness only to methods that simulate)."""
+    out = []
+    for m in methods:
+        m = parse_method(m)
+        if not m.simulates or not (iterations or stiffness):
+            out.append(m)
+            continue
+        for it in (iterations or [None]):
+            for k in (stiffness or [None]):
+                p = {}
+                if it is not None:
+                    p["iterations"] = int(it)
+                if k is not None:
+                    p["stiffness"] = float(k)
+                out.append(m.with_params(**p))
+    return out
+
+
+def expand_scenes(scenes, tets=None) -> list:
+    """Every scene, times every tet count of ``tets`` when given."""
+    out = []
+    for s in scenes:
+        s = parse_scene(s) if isinstance(s, str) else s
+        out.extend([s.with_tets(int(t)) for t in tets] if tets else [s])
+    return out
+
+
+# ----------------------------------------------------------------------- memory
+def memory_profile(scene="humanoid:24000", frames: int = 3000, every: int = 250,
+                   method="default", clip: str = "walk", progress: bool = True) -> dict:
+    """Resident set size of *this* process while ``method`` deforms ``clip`` in a
+    loop on ``scene`` for ``frames`` frames, sampled every ``every`` frames.
+
+    Returns start (after imports), after set-up, after warm-up, peak, end (MB),
+    the samples, and ``flat``: ``(end - after_warmup) / after_warmup < 10%``.
+    Run it in a fresh process (``skin_bench memory`` does) for clean figures."""
+    import psutil
+    proc = psutil.Process()
+    rss = lambda: proc.memory_info().rss / 2**20  # noqa: E731
+    start = rss()
+    scene = parse_scene(scene) if isinstance(scene, str) else scene
+    ch, load_s = load_scene(scene)
+    pipe = parse_method(method).build(ch)
+    setup = rss()
+    Q = make_motion(clip, ch).frames
+    warm_s = _warm_up(pipe, Q, ch)
+    warm = rss()
+    samples = [(0, warm)]
+    bar = Progress(frames, f"memory {scene.label}", enabled=progress)
+    t0 = time.perf_counter()
+    for t in range(frames):
+        pipe.deform(Q[t % len(Q)])
+        if (t + 1) % every == 0 or t == frames - 1:
+            samples.append((t + 1, rss()))
+        bar.update(1)
+    bar.close()
+    end = samples[-1][1]
+    growth = (end - warm) / warm
+    return {"scene": scene.label, "method": parse_method(method).name, "clip": clip,
+            "frames": frames, "every": every, "start_mb": start, "after_setup_mb": setup,
+            "after_warmup_mb": warm, "peak_mb": max(v for _, v in samples), "end_mb": end,
+            "growth": growth, "flat": bool(growth < 0.10), "setup_s": load_s,
+            "warmup_s": warm_s, "run_s": time.perf_counter() - t0,
+            "samples": [[int(f), float(v)] for f, v in samples]}

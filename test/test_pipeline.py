@@ -1,0 +1,150 @@
+"""Acceptance tests of the deformer on the built-in characters.
+
+Each asserts a measured number against a bound, for our default pipeline and
+for the plain method it must beat, so a stage that silently does nothing fails.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from skin_node import DEFAULT_STAGES, Pipeline, load_character
+from skin_node.metrics import mesh_volume, roughness
+from skin_node.stages.collision import JointRegions, count_crossings
+
+
+@pytest.fixture(scope="module")
+def arm():
+    return load_character("arm", progress=False)
+
+
+@pytest.fixture(scope="module")
+def small_arm():
+    return load_character("arm", surface_vertices=2000, tet_count=6000, progress=False)
+
+
+@pytest.fixture(scope="module")
+def humanoid():
+    return load_character("humanoid", surface_vertices=8000, tet_count=20000, progress=False)
+
+
+def volume_ratio(ch, stages, q, **params) -> float:
+    pipe = Pipeline(ch, stages, **params)
+    V = pipe.deform(q)
+    return mesh_volume(V, ch.F) / mesh_volume(ch.V, ch.F)
+
+
+def thinnest_section(ch, V, x0=0.30, x1=0.58) -> float:
+    """Smallest ratio, over 1 cm slabs of the rest arm between x0 and x1, of the
+    mean distance from the arm's axis now to that at rest."""
+    m = (ch.V[:, 0] > x0) & (ch.V[:, 0] < x1)
+    r = np.hypot(V[m, 1], V[m, 2])
+    r0 = np.hypot(ch.V[m, 1], ch.V[m, 2])
+    slab = np.floor(ch.V[m, 0] * 100).astype(int)
+    return min(r[slab == s].mean() / r0[slab == s].mean() for s in np.unique(slab))
+
+
+def test_elbow_150_keeps_volume(arm):
+    q = arm.pose(elbow_rz=np.radians(150))
+    ours = volume_ratio(arm, DEFAULT_STAGES, q)
+    lbs = volume_ratio(arm, ["lbs"], q)
+    assert ours >= 0.97, ours
+    assert ours <= 1.03, ours
+    assert lbs <= 0.92, lbs
+
+
+def test_wrist_twist_180_keeps_section(arm):
+    q = arm.pose(wrist_rx=np.radians(180))
+    ours = thinnest_section(arm, Pipeline(arm).deform(q))
+    lbs = thinnest_section(arm, Pipeline(arm, ["lbs"]).deform(q))
+    assert ours >= 0.80, ours
+    assert lbs < 0.2, lbs          # the candy wrapper
+
+
+@pytest.mark.parametrize("case", ["arm", "humanoid"])
+def test_no_skin_crossings_after_collision(case, arm, humanoid):
+    ch = arm if case == "arm" else humanoid
+    q = ch.pose(elbow_rz=np.radians(150)) if case == "arm" else ch.pose(l_knee_ry=np.radians(150))
+    regions = JointRegions(ch)
+    lbs = Pipeline(ch, ["lbs"])
+    V = lbs.deform(q)
+    before = count_crossings(V, ch.V, ch.F, lbs.last_frame.M, regions)
+    ours = Pipeline(ch)
+    V = ours.deform(q)
+    after = count_crossings(V, ch.V, ch.F, ours.last_frame.M, regions)
+    assert before > 20, before
+    assert after == 0, after
+    # the collision stage itself (paper's projection) is what removes them
+    no_col = Pipeline(ch, self_collision=False)
+    V = no_col.deform(q)
+    assert count_crossings(V, ch.V, ch.F, no_col.last_frame.M, regions) > 0
+
+
+def test_smooth_lowers_roughness_inside_region_only(arm):
+    q = arm.pose(elbow_rz=np.radians(120))
+    rough = Pipeline(arm, ["lbs", "pbd"])
+    smooth = Pipeline(arm, ["lbs", "pbd", "smooth"], smoothing=0.5, smoothing_iterations=2)
+    A, B = rough.deform(q), smooth.deform(q)
+    region = np.flatnonzero(arm.rig.region == arm.skeleton.index("elbow"))
+    r = arm.rig
+    assert roughness(B, region, r.adj_ptr, r.adj) < 0.9 * roughness(A, region, r.adj_ptr, r.adj)
+    outside = np.setdiff1d(np.arange(len(arm.V)), region)
+    assert np.abs(B[outside] - A[outside]).max() == 0.0
+    assert np.abs(B[region] - A[region]).max() > 1e-5
+
+
+def test_rest_pose_is_rest_mesh(arm):
+    for stages in (["lbs"], ["dqs"], DEFAULT_STAGES):
+        V = Pipeline(arm, stages).deform(arm.skeleton.rest_pose())
+        assert np.abs(V - arm.V).max() < 1e-9
+
+
+def test_timings_and_presets(small_arm):
+    q = small_arm.pose(elbow_rz=2.0)
+    for name in ("lbs", "dqs", "pbs", "paper", "default"):
+        pipe = Pipeline.preset(small_arm, name)
+        V = pipe.deform(q)
+        assert np.all(np.isfinite(V))
+        assert set(pipe.timings) >= {"fk", "total", *pipe.stage_names}
+        assert pipe.timings["total"] >= max(pipe.timings[s] for s in pipe.stage_names)
+
+
+def test_pose_errors(small_arm):
+    pipe = Pipeline(small_arm)
+    with pytest.raises(ValueError, match="shape"):
+        pipe.deform(np.zeros(3))
+    q = small_arm.skeleton.rest_pose()
+    q[4] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        pipe.deform(q)
+
+
+def random_motion(skel, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Smooth random motion within the joint limits, with bursts of 90-degree
+    jumps between consecutive frames."""
+    lo, hi = skel.limits[..., 0].ravel(), skel.limits[..., 1].ravel()
+    q = np.zeros(skel.n_channels)
+    out = np.empty((n, skel.n_channels))
+    a = np.zeros_like(lo)
+    for t in range(n):
+        a = np.clip(a + rng.normal(0.0, 0.03, a.shape), lo, hi)
+        if (t // 250) % 8 == 7:                    # a burst: jump 90 degrees every frame
+            a = np.clip(a + rng.choice([-1, 1], a.shape) * np.pi / 2, lo, hi)
+        q[3:] = a
+        out[t] = q
+    return out
+
+
+def test_stability_10000_random_frames(small_arm):
+    ch = small_arm
+    rng = np.random.default_rng(7)
+    frames = random_motion(ch.skeleton, 10_000, rng)
+    ours, lbs = Pipeline(ch), Pipeline(ch, ["lbs"])
+    worst = 0.0
+    for q in frames:
+        V = ours.deform(q)
+        assert np.all(np.isfinite(V))
+        worst = max(worst, float(np.linalg.norm(V - lbs.deform(q), axis=1).max()))
+    assert worst < 0.5, worst
+    V = ours.deform(ch.skeleton.rest_pose())
+    assert np.linalg.norm(V - ch.V, axis=1).max() < 1e-3
