@@ -1,0 +1,413 @@
+"""``skin_bench``: speed, accuracy, stability, memory and ROS latency of skin_node.
+
+Subcommands (``run`` is the default when the first argument is an option)::
+
+    skin_bench run --pipelines lbs,dqs,pbs,paper,default --scenes arm:2000,arm:6000 \\
+                   --clips elbow_bend,wrist_twist --iterations 1,2,5,10,30 --out out/
+    skin_bench run --pipelines '{"name": "dqs+pbd", "stages": ["dqs", "pbd"]}' ...
+    skin_bench stability --pipelines lbs,default --long-frames 100000
+    skin_bench memory --scene humanoid:24000 --frames 3000
+    skin_bench ros-latency --seconds 10
+    skin_bench report            # everything, into bench_results/, prints a markdown table
+
+Outputs: ``runs.csv`` / ``runs.json`` (one summary row per method, scene and
+motion), ``frames.csv`` (every measured frame), PNG charts. Definitions of every
+column are in :mod:`skin_node.bench.measure` and :mod:`skin_node.bench.stability`.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import charts
+from .measure import (Progress, expand_methods, expand_scenes, load_scene, make_motion,
+                      memory_profile, parse_method, run_method)
+
+DEFAULT_PIPELINES = "lbs,dqs,pbs,paper,default"
+DEFAULT_CLIPS = {"arm": ["elbow_bend", "wrist_twist"], "humanoid": ["walk", "squat"]}
+#: The clip a scene's row of the markdown table is taken from.
+TABLE_CLIP = {"arm": "elbow_bend", "humanoid": "squat"}
+
+
+# ------------------------------------------------------------------- helpers
+def _list(s: str | None, cast=str) -> list:
+    return [cast(x) for x in s.split(",") if x.strip()] if s else []
+
+
+def _pipelines(values) -> list:
+    """``--pipelines`` items: comma-separated preset names, or JSON dicts."""
+    out = []
+    for v in values or [DEFAULT_PIPELINES]:
+        out.extend([v] if v.lstrip().startswith("{") else _list(v))
+    return [parse_method(v) for v in out]
+
+
+def _clean(v):
+    if isinstance(v, (np.floating, float)):
+        return None if not math.isfinite(float(v)) else round(float(v), 6)
+    if isinstance(v, np.integer):
+        return int(v)
+    if isinstance(v, dict):
+        return {k: _clean(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_clean(x) for x in v]
+    return v
+
+
+def write_csv(rows: list, path: Path) -> Path:
+    """Rows of dicts to CSV (union of keys, in first-seen order; floats to 6 digits)."""
+    keys = list(dict.fromkeys(k for r in rows for k in r))
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, keys)
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v)
+                        for k, v in ((k, r.get(k, "")) for k in keys)})
+    return path
+
+
+def write_json(obj, path: Path) -> Path:
+    path.write_text(json.dumps(_clean(obj), indent=1) + "\n")
+    return path
+
+
+def environment() -> dict:
+    """What the figures were measured on."""
+    import numba
+    env = {"python": platform.python_version(), "numpy": np.__version__,
+           "numba": numba.__version__, "machine": platform.machine(),
+           "cpus": os.cpu_count(), "numba_threads": numba.config.NUMBA_NUM_THREADS,
+           "date": time.strftime("%Y-%m-%d %H:%M:%S")}
+    try:
+        env["load_average"] = [round(x, 2) for x in os.getloadavg()]
+    except OSError:
+        pass
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                env["cpu"] = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return env
+
+
+# ------------------------------------------------------------------------ run
+def run_bench(pipelines, scenes, clips=None, iterations=None, stiffness=None, tets=None,
+              stride: int = 6, max_frames: int | None = None, sweep_steps: int = 37,
+              reference: bool = True, ref_frames: int = 6, crossings_every: int = 1,
+              out: Path | None = None, charts_: bool = True, progress: bool = True,
+              frames_csv: bool = True) -> dict:
+    """Every (method, scene, motion); returns ``{"runs": [...], "frames": {...}}``
+    and writes CSV/JSON/PNG into ``out`` when given."""
+    methods = expand_methods(pipelines, iterations, stiffness)
+    scenes = expand_scenes(scenes, tets)
+    plan = []
+    for sc in scenes:
+        ch, _ = load_scene(sc)
+        for c in (clips or DEFAULT_CLIPS.get(sc.character, ["walk"])):
+            mo = make_motion(c, ch, steps=sweep_steps, stride=stride, max_frames=max_frames)
+            if mo is None:
+                print(f"skin_bench: {c} does not apply to {sc.label}; skipped", file=sys.stderr)
+                continue
+            plan.extend((m, sc, mo) for m in methods)
+    bar = Progress(sum(len(mo.frames) for _, _, mo in plan), "run", enabled=progress)
+    runs, frames = [], {}
+    for m, sc, mo in plan:
+        bar.label = f"{m.name} {sc.label} {mo.name}"
+        r = run_method(m, sc, mo, reference=reference, ref_frames=ref_frames,
+                       crossings_every=crossings_every, progress=bar)
+        runs.append(r.summary)
+        frames.setdefault(sc.label, {}).setdefault(mo.name, {})[m.name] = r.rows
+    bar.close()
+    result = {"environment": environment(), "runs": runs, "frames": frames}
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        write_csv(runs, out / "runs.csv")
+        write_json({"environment": result["environment"], "runs": runs}, out / "runs.json")
+        if frames_csv:
+            flat = [{"scene": s, "motion": mo, "method": m, **row}
+                    for s, d in frames.items() for mo, dm in d.items()
+                    for m, rows in dm.items() for row in rows]
+            write_csv(flat, out / "frames.csv")
+        if charts_:
+            draw_run_charts(result, out)
+    return result
+
+
+def draw_run_charts(result: dict, out: Path) -> list:
+    """Speed/accuracy per scene (clip runs), pose sweeps per scene (sweep runs)."""
+    paths = []
+    by_scene = {}
+    for s in result["runs"]:
+        if s["motion"] not in ("elbow_sweep", "twist_sweep"):
+            by_scene.setdefault(s["scene"], []).append(s)
+    for sc, runs in by_scene.items():
+        clips = sorted({r["motion"] for r in runs})
+        paths.append(charts.speed_accuracy(
+            runs, out / f"speed_accuracy_{sc.replace(':', '_')}.png",
+            f"{sc} ({', '.join(clips)}): speed against accuracy; lower is better, "
+            "lines = Pareto fronts"))
+    for sc, d in result["frames"].items():
+        sweeps = {m: d[m] for m in ("elbow_sweep", "twist_sweep") if m in d}
+        if sweeps:
+            paths.append(charts.pose_sweeps(sweeps, out / f"pose_sweeps_{sc.replace(':', '_')}.png",
+                                            f"{sc}: volume and deviation over pose sweeps"))
+    return paths
+
+
+# ------------------------------------------------------------------- markdown
+def markdown_table(runs: list) -> str:
+    """Method x scene on each scene's table clip (elbow_bend on the arm, squat on
+    the humanoid; else the first clip run)."""
+    rows, seen = [], set()
+    for s in runs:
+        key = (s["method"], s["scene"])
+        if key in seen or s["motion"] in ("elbow_sweep", "twist_sweep"):
+            continue
+        want = TABLE_CLIP.get(s["scene"].split(":")[0])
+        cand = [r for r in runs if (r["method"], r["scene"]) == key and r["motion"] == want] or [s]
+        seen.add(key)
+        rows.append(cand[0])
+    f = lambda v, d=2: "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) \
+        else f"{v:.{d}f}"  # noqa: E731
+    lines = ["| method | scene | clip | ms p50 / p90 | volume at deepest bend | "
+             "collapse / bulge (mm) | crossings (max) | distance to reference (mm, mean / max) |",
+             "|---|---|---|---|---|---|---|---|"]
+    for s in rows:
+        lines.append(
+            f"| {s['method']} | {s['scene']} | {s['motion']} ({f(s['deepest_angle_deg'], 0)} deg) | "
+            f"{f(s['ms_total_p50'], 1)} / {f(s['ms_total_p90'], 1)} | "
+            f"{f(s['volume_ratio_deepest'], 3)} | {f(s['collapse_mm'], 1)} / {f(s['bulge_mm'], 1)} | "
+            f"{f(s['crossings_max'], 0)} | {f(s['ref_mean_mm'], 2)} / {f(s['ref_max_mm'], 1)} |")
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------- stability
+def run_stability(pipelines, scene="arm:2000", long_frames=100_000, jitter_frames=1000,
+                  cases=None, out: Path | None = None, progress=True) -> list:
+    from .stability import CASES, stability_map
+    res = stability_map(pipelines, scene, cases or CASES, long_frames=long_frames,
+                        jitter_frames=jitter_frames, progress=progress)
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        write_json({"environment": environment(), "scene": str(scene), "results": res},
+                   out / "stability.json")
+        write_csv([{**r, "failed": " ".join(r["failed"])} for r in res], out / "stability.csv")
+        charts.stability_chart(res, out / "stability.png", f"stability map on {scene}")
+    return res
+
+
+# -------------------------------------------------------------------- memory
+def run_memory(scene="humanoid:24000", frames=3000, every=250, out: Path | None = None,
+               fresh: bool = True, progress=True) -> dict:
+    """:func:`memory_profile` in a fresh Python process (``fresh``) or in this one."""
+    if fresh:
+        cmd = [sys.executable, "-m", "skin_node.bench.cli", "memory", "--in-process",
+               "--scene", str(scene), "--frames", str(frames), "--every", str(every),
+               "--print-json"] + ([] if progress else ["--no-progress"])
+        p = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, check=True)
+        mem = json.loads(p.stdout.strip().splitlines()[-1])
+    else:
+        mem = memory_profile(scene, frames, every, progress=progress)
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        write_json(mem, out / "memory.json")
+        charts.memory_chart(mem, out / "memory.png")
+    return mem
+
+
+def memory_line(mem: dict) -> str:
+    return (f"memory ({mem['method']}, {mem['scene']}, {mem['frames']} frames): start "
+            f"{mem['start_mb']:.0f} MB, after set-up {mem['after_setup_mb']:.0f}, after warm-up "
+            f"{mem['after_warmup_mb']:.0f}, peak {mem['peak_mb']:.0f}, end {mem['end_mb']:.0f} MB; "
+            f"growth after warm-up {100 * mem['growth']:+.1f}% -> "
+            f"{'FLAT (< 10%)' if mem['flat'] else 'NOT FLAT (>= 10%)'}")
+
+
+# -------------------------------------------------------------------- report
+def report(out: Path, quick: bool = False, ros: bool = True, progress: bool = True) -> str:
+    """Regenerate every result in ``out``; returns the markdown summary."""
+    t0 = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    pipes = _pipelines([DEFAULT_PIPELINES])
+    scenes = ["arm:2000"] if quick else ["arm:2000", "arm:6000", "humanoid:24000"]
+    stride = 24 if quick else 8
+    main = run_bench(pipes, scenes, stride=stride, ref_frames=3 if quick else 5,
+                     out=out, progress=progress, charts_=False, frames_csv=False)
+    sweep_scene = "arm:2000" if quick else "arm:6000"
+    sims = [p for p in pipes if p.simulates]
+    iters = run_bench(sims, [sweep_scene], clips=["elbow_bend"], iterations=[1, 2, 5, 10, 30],
+                      stride=stride * 2, ref_frames=3, progress=progress, charts_=False)
+    poses = run_bench(pipes, [sweep_scene], clips=["elbow_sweep", "twist_sweep"],
+                      sweep_steps=13 if quick else 25, reference=False, progress=progress,
+                      charts_=False)
+    allruns = main["runs"] + iters["runs"] + poses["runs"]
+    write_csv(allruns, out / "runs.csv")
+    write_json({"environment": main["environment"], "runs": allruns}, out / "runs.json")
+    flat = [{"scene": s, "motion": mo, "method": m, **row}
+            for s, d in poses["frames"].items() for mo, dm in d.items()
+            for m, rows in dm.items() for row in rows]
+    write_csv(flat, out / "pose_sweeps.csv")
+    for sc in scenes:
+        charts.speed_accuracy([r for r in main["runs"] if r["scene"] == sc],
+                              out / f"speed_accuracy_{sc.replace(':', '_')}.png",
+                              f"{sc}, all clips: speed against accuracy (lower is better)")
+    charts.speed_accuracy(
+        [r for r in iters["runs"]] + [r for r in main["runs"] if r["scene"] == sweep_scene
+                                      and r["motion"] == "elbow_bend"
+                                      and r["method"] in ("lbs", "dqs")],
+        out / "speed_accuracy_iterations.png",
+        f"{sweep_scene} elbow_bend, iterations 1/2/5/10/30: speed against accuracy; "
+        "lines = each method's Pareto front")
+    draw_run_charts({"runs": [], "frames": poses["frames"]}, out)
+    stab = run_stability(pipes, "arm:2000", long_frames=200 if quick else 1000,
+                         jitter_frames=100 if quick else 300, out=out, progress=progress)
+    mem = run_memory("arm:2000" if quick else "humanoid:24000", 300 if quick else 1000,
+                     100 if quick else 200, out=out, progress=progress)
+    lat = None
+    if ros:
+        try:
+            from .ros_latency import measure_latency
+            lat = measure_latency(seconds=5 if quick else 10,
+                                  surface_vertices=2000 if quick else 24000,
+                                  character="arm" if quick else "humanoid")
+            write_json(lat, out / "ros_latency.json")
+        except Exception as e:  # noqa: BLE001 - ROS may be missing; the rest still stands
+            print(f"skin_bench: ros-latency skipped: {type(e).__name__}: {e}", file=sys.stderr)
+    md = ["## Benchmark summary", "",
+          f"Measured by `skin_bench report` in {time.perf_counter() - t0:.0f} s on "
+          f"{main['environment'].get('cpu', platform.machine())} "
+          f"({main['environment']['cpus']} cpus, load average "
+          f"{main['environment'].get('load_average')}). ms = deform time per frame after a "
+          "JIT warm-up; set-up and warm-up times are in runs.csv.", "",
+          markdown_table(main["runs"]), "",
+          "Stability (arm:2000): " + "; ".join(
+              f"{m}: " + ", ".join(f"{r['case']} {'ok' if r['stable'] else '+'.join(r['failed'])}"
+                                   for r in stab if r["method"] == m)
+              for m in dict.fromkeys(r["method"] for r in stab)), "",
+          memory_line(mem)]
+    if lat:
+        md += ["", latency_line(lat)]
+    text = "\n".join(md) + "\n"
+    (out / "summary.md").write_text(text)
+    return text
+
+
+def latency_line(lat: dict) -> str:
+    return (f"ROS latency ({lat['character']}:{lat['surface_vertices']}, {lat['rate_hz']:.0f} Hz "
+            f"for {lat['seconds']:.0f} s): p50 {lat['latency_ms_p50']:.1f} ms, p99 "
+            f"{lat['latency_ms_p99']:.1f} ms, {lat['outputs']} outputs for {lat['inputs']} inputs, "
+            f"node skipped {lat['skipped_stale']} as stale")
+
+
+# ----------------------------------------------------------------------- CLI
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="skin_bench", description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="cmd")
+
+    def common(p):
+        p.add_argument("--out", type=Path, default=Path("bench_out"), help="output folder")
+        p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    r = sub.add_parser("run", help="speed and accuracy of pipelines over scenes and clips")
+    r.add_argument("--pipelines", nargs="+", default=[DEFAULT_PIPELINES],
+                   help="preset names (comma-separated) and/or JSON dicts "
+                        '{"name", "preset", "stages", "params"}')
+    r.add_argument("--scenes", default="arm:2000",
+                   help="comma-separated character:surface_vertices[:tets]")
+    r.add_argument("--clips", default="", help="clips and pose sweeps (elbow_bend, wrist_twist, "
+                   "walk, squat, elbow_sweep, twist_sweep); default per character")
+    r.add_argument("--iterations", default="", help="sweep, e.g. 1,2,5,10,30")
+    r.add_argument("--stiffness", default="", help="sweep, e.g. 0.2,0.5,0.8")
+    r.add_argument("--tets", default="", help="sweep of tet counts, e.g. 6000,12000,24000")
+    r.add_argument("--stride", type=int, default=6, help="use every n-th clip frame")
+    r.add_argument("--max-frames", type=int, default=0, help="at most this many frames per clip")
+    r.add_argument("--sweep-steps", type=int, default=37, help="poses of a pose sweep")
+    r.add_argument("--ref-frames", type=int, default=6,
+                   help="frames compared with the converged reference (0 = none)")
+    r.add_argument("--crossings-every", type=int, default=1)
+    r.add_argument("--no-charts", action="store_true")
+    common(r)
+
+    s = sub.add_parser("stability", help="stability map of pipelines against failure cases")
+    s.add_argument("--pipelines", nargs="+", default=[DEFAULT_PIPELINES])
+    s.add_argument("--scene", default="arm:2000")
+    s.add_argument("--cases", default="", help="subset of bend180,twist360,jumps,jitter,long")
+    s.add_argument("--long-frames", type=int, default=100_000)
+    s.add_argument("--jitter-frames", type=int, default=1000)
+    common(s)
+
+    m = sub.add_parser("memory", help="RSS of a process running the default pipeline")
+    m.add_argument("--scene", default="humanoid:24000")
+    m.add_argument("--frames", type=int, default=3000)
+    m.add_argument("--every", type=int, default=250)
+    m.add_argument("--in-process", action="store_true", help="measure this process")
+    m.add_argument("--print-json", action="store_true", help=argparse.SUPPRESS)
+    common(m)
+
+    sub.add_parser("ros-latency", help="input-to-output latency of the node", add_help=False)
+
+    p = sub.add_parser("report", help="regenerate bench_results/ and print a markdown table")
+    p.add_argument("--out", type=Path, default=Path("bench_results"))
+    p.add_argument("--quick", action="store_true", help="small sizes (a smoke run)")
+    p.add_argument("--no-ros", action="store_true", help="skip the ROS latency measurement")
+    p.add_argument("--no-progress", action="store_true")
+    return ap
+
+
+def main(argv: list | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] == "ros-latency":
+        from .ros_latency import main as ros_main
+        return ros_main(argv[1:])
+    if not argv or argv[0].startswith("-") and argv[0] not in ("-h", "--help"):
+        argv = ["run"] + argv
+    a = _parser().parse_args(argv)
+    prog = not a.no_progress
+    try:
+        if a.cmd == "run":
+            res = run_bench(_pipelines(a.pipelines), _list(a.scenes), _list(a.clips) or None,
+                            _list(a.iterations, int), _list(a.stiffness, float),
+                            _list(a.tets, int), a.stride, a.max_frames or None, a.sweep_steps,
+                            a.ref_frames > 0, a.ref_frames, a.crossings_every, a.out,
+                            not a.no_charts, prog)
+            print(markdown_table(res["runs"]))
+            print(f"\nwritten to {a.out}/")
+        elif a.cmd == "stability":
+            res = run_stability(_pipelines(a.pipelines), a.scene, a.long_frames, a.jitter_frames,
+                                _list(a.cases) or None, a.out, prog)
+            for r in res:
+                print(f"{r['method']:>10s} {r['case']:>9s} ({r['frames']} frames): "
+                      f"{'stable' if r['stable'] else 'FAILED ' + ', '.join(r['failed'])}")
+        elif a.cmd == "memory":
+            if a.in_process:
+                mem = memory_profile(a.scene, a.frames, a.every, progress=prog)
+                if a.print_json:
+                    print(json.dumps(_clean(mem)))
+                    return 0
+                write_json(mem, (a.out.mkdir(parents=True, exist_ok=True), a.out)[1] / "memory.json")
+            else:
+                mem = run_memory(a.scene, a.frames, a.every, a.out, progress=prog)
+            print(memory_line(mem))
+            return 0 if mem["flat"] else 1
+        elif a.cmd == "report":
+            print(report(a.out, quick=a.quick, ros=not a.no_ros, progress=prog))
+    except ValueError as e:
+        print(f"skin_bench: error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,149 @@
+"""``skin_bench ros-latency``: input-to-output latency of the skin_node process.
+
+Starts the node (the ``skin_node`` console script if on PATH, else
+``python -m skin_node.node``) on its own ROS_DOMAIN_ID with
+ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, waits until it has latched
+``skin/mesh`` (it does so once set up), then publishes JointState at
+``rate`` Hz from the walk clip for ``seconds`` seconds. Every JointState's
+``header.stamp`` is the send time on this process's clock; the node copies it
+into ``skin/points``, so latency = receive time - output stamp. Reports p50 /
+p99 latency, outputs vs inputs, and the node's ``frames_skipped_stale`` from
+``skin/diagnostics``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+
+def _command() -> list:
+    exe = shutil.which("skin_node")
+    return [exe] if exe else [sys.executable, "-m", "skin_node.node"]
+
+
+def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str = "humanoid",
+                    surface_vertices: int = 24000, domain: int | None = None,
+                    ready_timeout: float = 300.0) -> dict:
+    """Run the node and measure it; see the module docstring. Returns a dict."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import PointCloud2
+    from shape_msgs.msg import Mesh
+
+    from msg_adapters import channels_to_joint_state, diagnostic_values
+    from skin_node import load_character, make_clip
+    from skin_node.node import QOS_JOINT_STATES, QOS_LATCHED, QOS_STREAM
+
+    domain = domain if domain is not None else 100 + os.getpid() % 100
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               PYTHONUNBUFFERED="1")
+    os.environ.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    ch = load_character(character, surface_vertices=surface_vertices, progress=False)
+    clip = make_clip("walk" if character == "humanoid" else "elbow_bend", ch.skeleton)
+    log = tempfile.NamedTemporaryFile("w+", suffix=".log", delete=False)
+    proc = subprocess.Popen(_command() + ["--ros-args", "-p", f"character:={character}",
+                                          "-p", f"surface_vertices:={surface_vertices}"],
+                            stdout=log, stderr=subprocess.STDOUT, env=env)
+    rclpy.init()
+    node = rclpy.create_node("skin_bench_latency")
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    lat, diag, ready = [], {}, []
+    clock = node.get_clock()
+
+    def on_points(msg):
+        now = clock.now().nanoseconds
+        st = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        lat.append((now - st) / 1e6)
+
+    def on_diag(msg):
+        try:
+            diag.update(diagnostic_values(msg))
+        except KeyError:
+            pass
+
+    node.create_subscription(Mesh, "skin/mesh", lambda m: ready.append(1), QOS_LATCHED)
+    node.create_subscription(PointCloud2, "skin/points", on_points, QOS_STREAM)
+    node.create_subscription(DiagnosticArray, "skin/diagnostics", on_diag, 10)
+    pub = node.create_publisher(type(channels_to_joint_state(["a"], np.zeros(1))),
+                                "joint_states", QOS_JOINT_STATES)
+    t_setup = time.monotonic()
+    try:
+        while not ready:
+            if proc.poll() is not None or time.monotonic() - t_setup > ready_timeout:
+                log.seek(0)
+                raise RuntimeError(f"skin_node did not come up:\n{log.read()[-2000:]}")
+            ex.spin_once(timeout_sec=0.1)
+        ready_s = time.monotonic() - t_setup
+        while pub.get_subscription_count() == 0:
+            ex.spin_once(timeout_sec=0.05)
+        names = list(clip.channel_names)
+        period = 1.0 / rate
+        sent = 0
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < seconds:
+            due = t0 + sent * period
+            while time.monotonic() < due:
+                ex.spin_once(timeout_sec=max(0.0, min(due - time.monotonic(), 0.002)))
+            q = clip.frames[sent % len(clip.frames)]
+            pub.publish(channels_to_joint_state(names, q, clock.now().to_msg()))
+            sent += 1
+        # drain outputs and wait for a diagnostics message that saw every input
+        t_end = time.monotonic()
+        while time.monotonic() - t_end < 3.0:
+            ex.spin_once(timeout_sec=0.05)
+            if int(diag.get("frames_received", 0)) >= sent and time.monotonic() - t_end > 1.2:
+                break
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        log.close()
+        os.unlink(log.name)
+    L = np.array(lat) if lat else np.array([np.nan])
+    return {"character": character, "surface_vertices": surface_vertices, "rate_hz": rate,
+            "seconds": seconds, "node_ready_s": ready_s, "inputs": sent, "outputs": len(lat),
+            "latency_ms_p50": float(np.percentile(L, 50)),
+            "latency_ms_p99": float(np.percentile(L, 99)),
+            "latency_ms_max": float(np.max(L)),
+            "skipped_stale": int(diag.get("frames_skipped_stale", -1)),
+            "node_received": int(diag.get("frames_received", -1)),
+            "node_ms_per_frame": float(diag.get("ms_per_frame", "nan")),
+            "domain_id": domain}
+
+
+def main(argv: list | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="skin_bench ros-latency", description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--rate", type=float, default=120.0)
+    ap.add_argument("--character", default="humanoid")
+    ap.add_argument("--surface-vertices", type=int, default=24000)
+    ap.add_argument("--domain", type=int, default=None, help="ROS_DOMAIN_ID (default: from pid)")
+    ap.add_argument("--out", default="", help="write the result as JSON here")
+    a = ap.parse_args(argv)
+    res = measure_latency(a.seconds, a.rate, a.character, a.surface_vertices, a.domain)
+    text = json.dumps(res, indent=1)
+    if a.out:
+        with open(a.out, "w") as f:
+            f.write(text + "\n")
+    print(text)
+    from .cli import latency_line
+    print(latency_line(res))
+    return 0
