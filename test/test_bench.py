@@ -1,0 +1,160 @@
+"""Fast checks of skin_bench's measuring functions and CLI on the small arm."""
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from skin_node.bench import cli
+from skin_node.bench.measure import (Method, SceneMetrics, inverted_tets, load_scene,
+                                     make_motion, parse_method, parse_scene, run_method,
+                                     segment_distance)
+from skin_node.bench.stability import CASES, case_frames, stability_map
+from skin_node.bench.charts import pareto_front
+from skin_node.metrics import roughness
+
+SCENE = parse_scene("arm:2000")
+ELBOW_150 = np.radians(150.0)
+
+
+@pytest.fixture(scope="module")
+def arm():
+    ch, _ = load_scene(SCENE)
+    return ch
+
+
+@pytest.fixture(scope="module")
+def metrics(arm):
+    return SceneMetrics(arm)
+
+
+def _deform(arm, method: str, **pose):
+    pipe = parse_method(method).build(arm)
+    V = pipe.deform(arm.pose(**pose))
+    return pipe, V
+
+
+def test_parse_scene_and_method():
+    assert parse_scene("arm:6000:24000") == parse_scene("arm:6000").with_tets(24000)
+    assert parse_scene("humanoid").surface_vertices == 0
+    with pytest.raises(ValueError):
+        parse_scene("arm:many")
+    m = parse_method('{"preset": "default", "params": {"iterations": 10}}')
+    assert m.name == "default" and m.param_dict["iterations"] == 10 and m.simulates
+    m = parse_method('{"name": "dq", "stages": ["dqs"]}')
+    assert m == Method("dq", ("dqs",)) and not m.simulates
+    assert parse_method("pbs").with_params(iterations=2).name == "pbs[iterations=2]"
+    with pytest.raises(ValueError):
+        parse_method("nonsense")
+    with pytest.raises(ValueError):
+        parse_method('{"stages": ["lbs", "warp"]}')
+
+
+def test_segment_distance():
+    P = np.array([[0.5, 1.0, 0.0], [-1.0, 0.0, 0.0], [3.0, 0.0, 0.0]])
+    A, B = np.zeros((3, 3)), np.tile([2.0, 0.0, 0.0], (3, 1))
+    assert np.allclose(segment_distance(P, A, B), [1.0, 1.0, 1.0])
+
+
+def test_deviation_zero_at_rest_negative_for_lbs_at_150(arm, metrics):
+    pipe, V = _deform(arm, "lbs")
+    fr = pipe.last_frame
+    assert np.abs(metrics.deviation_mm(V, fr.seg_A, fr.seg_B)).max() < 1e-6
+    m = metrics.measure(V, fr)
+    assert m["volume_ratio"] == pytest.approx(1.0)
+    assert m["region_volume_ratio"] == pytest.approx(1.0)
+    assert m["crossings"] == 0 and m["dev_min_mm"] == pytest.approx(0.0, abs=1e-6)
+    pipe, V = _deform(arm, "lbs", elbow_rz=ELBOW_150)
+    m = metrics.measure(V, pipe.last_frame)
+    assert m["dev_min_mm"] < -5.0                       # elbow collapse
+    assert m["volume_ratio"] < 0.95
+    assert m["region_joint"] == "elbow" and m["region_volume_ratio"] < 0.95
+    assert m["crossings"] > 0
+
+
+def test_deviation_is_invariant_to_a_rigid_root_motion(arm, metrics):
+    pipe, V = _deform(arm, "lbs", shoulder_rz=0.4, root_tx=0.3)
+    m = metrics.measure(V, pipe.last_frame)
+    assert abs(m["dev_min_mm"]) < 1e-6 and abs(m["dev_max_mm"]) < 1e-6
+    assert m["volume_ratio"] == pytest.approx(1.0) and m["region_volume_ratio"] == pytest.approx(1.0)
+
+
+def test_roughness_matches_metrics(arm, metrics):
+    pipe, V = _deform(arm, "default", elbow_rz=2.0)
+    verts = np.flatnonzero(arm.rig.region >= 0)
+    assert metrics.roughness(V) == pytest.approx(roughness(V, verts, arm.rig.adj_ptr, arm.rig.adj))
+
+
+def test_inverted_tets_zero_at_rest(arm):
+    assert inverted_tets(arm.rig.TV, arm) == 0
+    X = arm.rig.TV.copy()
+    X[:, 0] *= -1.0                                     # a mirror flips every tet
+    assert inverted_tets(X, arm) == len(arm.rig.T)
+
+
+def test_run_method_summary(arm):
+    mo = make_motion("elbow_bend", arm, stride=30)
+    r = run_method(parse_method("default"), SCENE, mo, ref_frames=1)
+    s = r.summary
+    for k in ("ms_total_p50", "ms_total_p90", "ms_pbd_p50", "setup_s", "warmup_s",
+              "volume_ratio_deepest", "collapse_mm", "bulge_mm", "crossings_max", "ref_mean_mm",
+              "region_volume_ratio_deepest", "roughness_mm_max"):
+        assert k in s and np.isfinite(s[k]), k
+    assert s["frames"] == len(mo.frames) and s["ms_total_p90"] >= s["ms_total_p50"] > 0
+    assert s["deepest_angle_deg"] > 140
+    assert 0.9 < s["volume_ratio_deepest"] < 1.1
+
+
+def test_pose_sweeps_and_cases(arm):
+    m = make_motion("twist_sweep", arm, steps=5)
+    assert np.allclose(m.x, [0, 90, 180, 270, 360]) and m.frames.shape == (5, arm.n_channels)
+    assert make_motion("walk", arm) is None             # the arm has no legs
+    Q = case_frames("jumps", arm, 10)
+    lim = arm.skeleton.limits.reshape(-1, 2)
+    assert np.all((Q[:, 3:] >= lim[:, 0] - 1e-9) & (Q[:, 3:] <= lim[:, 1] + 1e-9))
+    jumps = np.abs(np.diff(Q[:, 3:], axis=0))
+    assert np.all(np.isclose(jumps, np.pi / 2).any(axis=1))
+    assert case_frames("long", arm, 1234).shape == (1234, arm.n_channels)
+
+
+def test_stability_map_short(arm):
+    res = stability_map(["default"], SCENE, cases=("jitter", "long"), long_frames=40,
+                        jitter_frames=30, progress=False)
+    assert [r["case"] for r in res] == ["jitter", "long"]
+    for r in res:
+        assert {"stable", "failed", "nan", "max_offset_m", "inverted_max", "crossings_max",
+                "drift_mm", "frames"} <= set(r)
+        assert r["stable"], r
+    assert set(CASES) == {"bend180", "twist360", "jumps", "jitter", "long"}
+
+
+def test_pareto_front():
+    x = np.array([1.0, 2.0, 3.0, 4.0, np.nan])
+    y = np.array([5.0, 6.0, 1.0, 0.5, 0.0])
+    assert pareto_front(x, y).tolist() == [0, 2, 3]
+
+
+def test_default_over_lbs_time_ratio(arm):
+    """The one timing assertion: a generous bound measured within one run."""
+    res = cli.run_bench(["lbs", "default"], ["arm:2000"], clips=["elbow_bend"], stride=20,
+                        reference=False, progress=False, charts_=False)
+    t = {r["method"]: r["ms_total_p50"] for r in res["runs"]}
+    assert t["default"] / t["lbs"] < 500
+
+
+def test_cli_writes_csv_json_png(tmp_path):
+    rc = cli.main(["run", "--pipelines", "lbs,dqs", '{"name": "dqs+pbd", "stages": ["dqs", "pbd"]}',
+                   "--scenes", "arm:2000", "--clips", "elbow_bend,elbow_sweep", "--stride", "60",
+                   "--sweep-steps", "4", "--ref-frames", "1", "--out", str(tmp_path),
+                   "--no-progress"])
+    assert rc == 0
+    rows = list(csv.DictReader(open(tmp_path / "runs.csv")))
+    assert {r["method"] for r in rows} == {"lbs", "dqs", "dqs+pbd"}
+    assert {r["motion"] for r in rows} == {"elbow_bend", "elbow_sweep"}
+    assert json.loads((tmp_path / "runs.json").read_text())["runs"]
+    assert (tmp_path / "frames.csv").stat().st_size > 0
+    for png in ("speed_accuracy_arm_2000.png", "pose_sweeps_arm_2000.png"):
+        assert (tmp_path / png).read_bytes()[:4] == b"\x89PNG"
+    assert cli.main(["run", "--pipelines", "bogus", "--out", str(tmp_path)]) == 2
