@@ -8,6 +8,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.ticker import NullFormatter, ScalarFormatter  # noqa: E402
 
 #: Accuracy measures of the speed/accuracy chart: (summary key, label, transform to "error").
 ACCURACY = (
@@ -71,6 +72,8 @@ def speed_accuracy(summaries: list, path: Path, title: str = "") -> Path:
         ax.set_xlabel("ms per frame (p50)")
         ax.set_ylabel(label, fontsize=8)
         ax.set_xscale("log")
+        ax.xaxis.set_major_formatter(ScalarFormatter())
+        ax.xaxis.set_minor_formatter(NullFormatter())
         ax.grid(alpha=0.3)
     for ax in axes[n:]:
         ax.axis("off")

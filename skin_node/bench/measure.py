@@ -50,7 +50,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .. import load_character, make_clip
+from .. import default_clip_name, load_character, make_clip
 from ..metrics import mesh_volume, region_volume
 from ..pipeline import PRESETS, STAGE_NAMES, Pipeline
 from ..stages.collision import JointRegions, count_crossings
@@ -526,7 +526,7 @@ def expand_scenes(scenes, tets=None) -> list:
 
 # ----------------------------------------------------------------------- memory
 def memory_profile(scene="humanoid:24000", frames: int = 3000, every: int = 250,
-                   method="default", clip: str = "walk", progress: bool = True) -> dict:
+                   method="default", clip: str | None = None, progress: bool = True) -> dict:
     """Resident set size of *this* process while ``method`` deforms ``clip`` in a
     loop on ``scene`` for ``frames`` frames, sampled every ``every`` frames.
 
@@ -541,6 +541,7 @@ def memory_profile(scene="humanoid:24000", frames: int = 3000, every: int = 250,
     ch, load_s = load_scene(scene)
     pipe = parse_method(method).build(ch)
     setup = rss()
+    clip = clip or default_clip_name(ch.name)
     Q = make_motion(clip, ch).frames
     warm_s = _warm_up(pipe, Q, ch)
     warm = rss()

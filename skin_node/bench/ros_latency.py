@@ -45,7 +45,7 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     from skin_node import load_character, make_clip
     from skin_node.node import QOS_JOINT_STATES, QOS_LATCHED, QOS_STREAM
 
-    domain = domain if domain is not None else 100 + os.getpid() % 100
+    domain = domain if domain is not None else 60 + os.getpid() % 40
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                PYTHONUNBUFFERED="1")
     os.environ.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
