@@ -18,14 +18,14 @@ import threading
 import time
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import JointState
 
-from skin_node.node import QOS_JOINT_STATES
+from skin_node.node import QOS_JOINT_STATES, init_ros, setting_up
 
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 #: Message type of each topic the node publishes; other topics need "topic=pkg/msg/Type".
@@ -153,10 +153,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"skin_bag: error: {e}", file=sys.stderr)
         return 1
     storage = StoragePlugin.MCAP if args.storage == "mcap" else StoragePlugin.SQLITE3
-    rclpy.init(args=args_ros)
+    init_ros(args_ros)
     executor = SingleThreadedExecutor()
     try:
-        with Writer(args.out_bag, version=8, storage_plugin=storage) as writer:
+        # The main thread paces playback rather than spinning: let a signal interrupt it.
+        with setting_up(), Writer(args.out_bag, version=8, storage_plugin=storage) as writer:
             node = BagRecorder(writer, topics)
             executor.add_node(node)
             spinner = threading.Thread(target=executor.spin, daemon=True)
@@ -180,7 +181,8 @@ def main(argv: list[str] | None = None) -> int:
             executor.shutdown()
             node.write_pending()
             counts = node.counts
-    except (KeyboardInterrupt, ExternalShutdownException):
+    except KeyboardInterrupt:
+        print("skin_bag: interrupted; the bag holds what was recorded so far", file=sys.stderr)
         return 1
     finally:
         rclpy.try_shutdown()

@@ -37,6 +37,7 @@ at the start of the next frame; ``character``, ``surface_vertices``,
 """
 from __future__ import annotations
 
+import contextlib
 import signal
 import sys
 import threading
@@ -51,6 +52,7 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.task import Future
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState, PointCloud2
 from shape_msgs.msg import Mesh
@@ -341,18 +343,63 @@ class SkinNode(Node):
         self._worker.join(timeout=1.5)
 
 
-def _interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt
+_SETTING_UP = threading.Event()
+
+
+def _on_signal(signum, frame) -> None:
+    if _SETTING_UP.is_set():
+        raise KeyboardInterrupt
+
+
+def init_ros(args: list | None) -> None:
+    """``rclpy.init`` with SIGINT and SIGTERM handled in two phases.
+
+    rclpy's handlers shut the context down, which ends ``spin``, and then chain
+    to the Python handler installed here. That one raises KeyboardInterrupt only
+    inside :func:`setting_up` (long numpy/numba set-up never reaches ``spin``);
+    afterwards it does nothing, so no interrupt can land in the middle of a
+    clean shutdown.
+    """
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _on_signal)
+    rclpy.init(args=args)
+
+
+@contextlib.contextmanager
+def setting_up():
+    """Inside this block SIGINT/SIGTERM raise KeyboardInterrupt (see :func:`init_ros`)."""
+    _SETTING_UP.set()
+    try:
+        yield
+    finally:
+        _SETTING_UP.clear()
+
+
+def spin_until_shutdown(node: Node, future: Future | None = None) -> None:
+    """Spin ``node`` until ``future`` is done or the context shuts down.
+
+    A signal can shut the context down while rclpy builds its next wait set,
+    which then raises instead of ExternalShutdownException: after a shutdown
+    any such error is the normal way out, not a failure.
+    """
+    try:
+        if future is None:
+            rclpy.spin(node)
+        else:
+            rclpy.spin_until_future_complete(node, future)
+    except ExternalShutdownException:
+        pass
+    except Exception:
+        if node.context.ok():
+            raise
 
 
 def main(args: list | None = None) -> int:
     """Console script ``skin_node``: exit 0 on SIGINT/SIGTERM, 2 on a set-up error."""
-    # rclpy's own handlers (installed by init) shut the context down and then
-    # chain to this one, so a SIGTERM during set-up interrupts it too.
-    signal.signal(signal.SIGTERM, _interrupt)
-    rclpy.init(args=args)
+    init_ros(args)
     try:
-        node = SkinNode()
+        with setting_up():
+            node = SkinNode()
     except KeyboardInterrupt:
         rclpy.try_shutdown()
         return 0
@@ -365,9 +412,7 @@ def main(args: list | None = None) -> int:
         rclpy.try_shutdown()
         return 2
     try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        spin_until_shutdown(node)
     finally:
         node.stop()
         node.destroy_node()

@@ -17,13 +17,12 @@ from pathlib import Path
 import numpy as np
 import rclpy
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
 
 from msg_adapters import channels_to_joint_state, load_name_map
-from skin_node.node import QOS_JOINT_STATES
+from skin_node.node import QOS_JOINT_STATES, init_ros, setting_up, spin_until_shutdown
 
 
 
@@ -124,18 +123,21 @@ def main(argv: list[str] | None = None) -> int:
     """Console script ``mocap_player``: 0 when done or interrupted, 2 on bad input."""
     args_ros = sys.argv if argv is None else ["mocap_player", *argv]
     defaults = _parse(rclpy.utilities.remove_ros_args(args_ros)[1:])
-    rclpy.init(args=args_ros)
+    init_ros(args_ros)
     try:
-        node = MocapPlayer(defaults)
+        with setting_up():
+            node = MocapPlayer(defaults)
+    except KeyboardInterrupt:
+        rclpy.try_shutdown()
+        return 0
     except (ValueError, OSError, ParameterException) as e:
         print(f"mocap_player: error: {e}", file=sys.stderr)
         rclpy.try_shutdown()
         return 2
     try:
-        rclpy.spin_until_future_complete(node, node.done)
-        node.get_logger().info(f"sent {node.sent} frames")
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        spin_until_shutdown(node, node.done)
+        if node.done.done():
+            node.get_logger().info(f"sent {node.sent} frames")
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
