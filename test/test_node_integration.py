@@ -364,7 +364,7 @@ def test_params_files_hold_only_declared_valid_parameters():
         params = yaml.safe_load((REPO / "config" / f"{name}.yaml").read_text())
         params = params["skin_node"]["ros__parameters"]
         assert params["character"] == name
-        assert set(params["pipeline"]) <= set(skin_node.STAGE_NAMES)
+        assert set(params.get("pipeline", skin_node.DEFAULT_STAGES)) <= set(skin_node.STAGE_NAMES)
         for key, value in params.items():
             if key not in node_params:
                 skin_node.PIPELINE_PARAMS[key].check(key, value)
