@@ -34,6 +34,7 @@ PRESETS = {
     "paper": (("lbs", "pbd", "collision", "smooth"),
               {"solver": "pbd", "active_regions": False, "active_threshold": 0.0,
                "collision_halfspace": False, "collision_angle": 0.0,
+               "smooth_mode": "position", "smoothing": 0.3, "smoothing_iterations": 1,
                "collision_pushout": False,
                "collision_plane": "paper", "volume_preserve": False,
                "constraints": ["stretch", "volume", "bind", "energy"]}),
@@ -121,8 +122,11 @@ PIPELINE_PARAMS = {
     "collision_halfspace": ParamSpec(bool, True, description="also project every vertex of the "
                                      "interpenetration zone on the wrong side of the plane"),
     "volume_preserve": ParamSpec(bool, True, description="run the volume stage"),
-    "smoothing": ParamSpec(float, 0.3, 0.0, 1.0, "Laplacian smoothing strength k"),
-    "smoothing_iterations": ParamSpec(int, 1, 0, 50, "Laplacian smoothing passes"),
+    "smoothing": ParamSpec(float, 0.5, 0.0, 1.0, "Laplacian smoothing strength k"),
+    "smoothing_iterations": ParamSpec(int, 4, 0, 50, "Laplacian smoothing passes"),
+    "smooth_mode": ParamSpec(str, "displacement", description="'position' (the paper: smooth "
+                             "the skin) or 'displacement' (smooth the solve's correction)",
+                             choices=("position", "displacement")),
 }
 
 

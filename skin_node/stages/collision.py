@@ -168,7 +168,9 @@ class Collision(Stage):
         regs = self.regions
         eps = 0.5e-3
         projected = pushed = 0
-        for j in regs.active(fr.bent & (fr.angles > self.params["collision_angle"])):
+        joints = regs.active(fr.bent & (fr.angles > self.params["collision_angle"]))
+        fr.counts["collision_joints"] = joints
+        for j in joints:
             plane = None
             for _ in range(int(self.params["collision_passes"])):
                 hit = regs.crossed(X, self.V0, self.F, fr.M, j)

@@ -8,8 +8,15 @@ from .base import Frame, Stage
 
 
 class Smooth(Stage):
-    """``p_i <- (1 - k) p_i + k mean(one ring of p_i)`` on the regions of bent
-    joints only, ``smoothing_iterations`` Jacobi passes of strength ``smoothing``."""
+    """Laplacian smoothing of the bent joints' skin, ``smoothing_iterations``
+    Jacobi passes of strength ``smoothing`` (faded in with the joints).
+
+    ``smooth_mode: position`` is the paper's ``p_i <- (1 - k) p_i + k mean(one
+    ring)`` on the joint regions. ``displacement`` (ours) smooths the
+    correction ``d = p - p_stage1`` instead, on every vertex the solve moved:
+    the coarse tets' piecewise-linear correction loses its facets while the
+    skin's own detail (and its volume) stays, since only ``d`` is averaged.
+    """
 
     name = "smooth"
 
@@ -18,23 +25,36 @@ class Smooth(Stage):
         r = character.rig
         self.ptr, self.adj = r.adj_ptr, r.adj
         self.region = r.region
+        # surface vertices whose tet touches each joint's zone
+        self.szone = r.zone[r.Etet].any(axis=1)
         self._key, self._verts = None, None
         self._buf = np.empty_like(character.V)
+        self._d = np.zeros_like(character.V)
 
-    def verts(self, bent: np.ndarray) -> np.ndarray:
-        key = bent.tobytes()
+    def verts(self, bent: np.ndarray, mode: str) -> np.ndarray:
+        key = (bent.tobytes(), mode)
         if key != self._key:
             js = np.flatnonzero(bent)
             self._key = key
-            self._verts = np.flatnonzero(np.isin(self.region, js)).astype(np.int64)
+            if mode == "position":
+                self._verts = np.flatnonzero(np.isin(self.region, js)).astype(np.int64)
+            else:
+                mask = self.szone[:, js].any(axis=1) | np.isin(self.region, js)
+                self._verts = np.flatnonzero(mask).astype(np.int64)
         return self._verts
 
     def __call__(self, fr: Frame) -> None:
         k = float(self.params["smoothing"])
         n = int(self.params["smoothing_iterations"])
-        vs = self.verts(fr.bent)
+        mode = self.params["smooth_mode"]
+        vs = self.verts(fr.bent, mode)
         if k <= 0 or n <= 0 or len(vs) == 0:
             return
-        # strength fades in with the joints' fade (no pop when a joint starts bending)
         kf = k * float(fr.fade[fr.bent].max())
-        laplacian_smooth(fr.surface, vs, self.ptr, self.adj, kf, n, self._buf)
+        if mode == "position":
+            laplacian_smooth(fr.surface, vs, self.ptr, self.adj, kf, n, self._buf)
+        else:
+            d = self._d
+            np.subtract(fr.surface, fr.surface_base, out=d)
+            laplacian_smooth(d, vs, self.ptr, self.adj, kf, n, self._buf)
+            fr.surface[vs] = fr.surface_base[vs] + d[vs]

@@ -6,10 +6,11 @@ away and smoothing shrinks. Following the closed-mesh volume constraint of
 Müller et al. 2007 (section 4.5) and the normal displacements of von Funck et
 al. 2008 ("Volume-preserving mesh skinning"), one global constraint
 ``C = V(p) - V0`` moves the skin of the bent joints' regions along its
-area-weighted normals, scaled by a mobility that is 1 where a vertex's weights
+unit normals, scaled by a mobility that is 1 where a vertex's weights
 are split evenly across the joint and 0 where one bone owns it, so the bulge
-forms around the joint and fades out smoothly. Vertices in contact with the
-other side of their joint do not move, so the fold stays resolved.
+forms around the joint and fades out smoothly. The regions whose folds the
+collision stage resolved, and any vertex within the other side's flesh
+radius, do not move, so the folds stay resolved.
 """
 from __future__ import annotations
 
@@ -105,9 +106,19 @@ class Volume(Stage):
                 d = point_segment_distance(X[z[sel]], A[o:o + 1], B[o:o + 1])[:, 0]
                 R = max(self.regions.R[j, o], 1e-9)
                 m[loc[sel]] *= np.clip((d / R - 1.0) / 0.5, 0.0, 1.0)
+        for j in fr.counts.get("collision_joints", ()):
+            # the region whose fold the collision stage resolved stays as it is
+            rv = np.unique(self.F[self.regions.tris[j]])
+            loc = np.searchsorted(v, rv)
+            ok = (loc < len(v)) & (v[np.minimum(loc, len(v) - 1)] == rv)
+            m[loc[ok]] = 0.0
         g = np.empty((len(v), 3))
         vol = volume_and_gradient(X, self.F, self.inc_ptr, self.inc, v, g)
-        den = float((m * (g * g).sum(1)).sum())
+        # Move along unit normals n = g/|g| by lam * m: an even layer whatever the
+        # triangle sizes. To first order dV = sum g . dp = lam * sum m |g|.
+        a = np.linalg.norm(g, axis=1)
+        den = float((m * a).sum())
         if den > 0.0:
-            X[v] -= ((vol - self.V0) / den) * m[:, None] * g
+            n = g / np.maximum(a, 1e-30)[:, None]
+            X[v] -= ((vol - self.V0) / den) * m[:, None] * n
         fr.counts["volume_ratio"] = vol / self.V0
