@@ -14,8 +14,9 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml"))),
     ],
+    # rclpy and the message packages come from the ROS installation (or its wheels).
     install_requires=["setuptools", "numpy", "numba", "trimesh", "scipy", "pyyaml",
-                      "scikit-image"],
+                      "scikit-image", "rosbags", "psutil", "matplotlib"],
     zip_safe=True,
     maintainer="skin_node maintainers",
     maintainer_email="maintainers@skin-node.invalid",
