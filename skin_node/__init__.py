@@ -11,6 +11,13 @@ plug-in, a benchmark or a notebook uses it alone::
     V = pipe.deform(ch.pose(elbow_rz=2.6))     # (n, 3) surface, metres
     pipe.timings                               # ms per stage
 """
+import os as _os
+
+# A per-frame deformer shares two cores with DDS threads and its feeders: OpenMP
+# threads that spin while waiting would steal them (measured: 10x slower
+# parallel kernels under load). Waiting threads sleep instead, unless told otherwise.
+_os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 from .builtin.clips import CLIP_NAMES, Clip, default_clip_name, make_clip
 from .character import Character, load_character
 from .pipeline import (DEFAULT_STAGES, PIPELINE_PARAMS, PRESETS, STAGE_NAMES, ParamSpec,

@@ -115,7 +115,7 @@ def load_character(spec: str, surface_vertices: int | None = None, tet_count: in
     """
     steps = Steps(f"set-up of {spec}", enabled=progress)
     spec = str(spec)
-    if spec in ("arm", "humanoid") or not (("/" in spec) or ("." in spec)):
+    if not (("/" in spec) or ("." in spec)):
         from .builtin.characters import DEFAULT_SURFACE_VERTICES
         if spec not in DEFAULT_SURFACE_VERTICES:
             raise ValueError(f"{spec}: unknown character (expected 'arm', 'humanoid' "

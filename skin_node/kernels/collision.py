@@ -79,7 +79,7 @@ def _seg_dist(px, py, pz, A, B):
     return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, parallel=True)
 def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, rest_sep,
                      rest_tol, cell):
     """The paper's sign test for skin passing through skin, made unambiguous.
@@ -148,7 +148,7 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, 
         g0, g1, g2, _, _, _ = _plane(X0, F, f)
         geo[b, 0], geo[b, 1], geo[b, 2], geo[b, 3] = gx, gy, gz, math.sqrt(rr)
         geo[b, 4], geo[b, 5], geo[b, 6] = g0, g1, g2
-    for a in range(nv):
+    for a in nb.prange(nv):
         i = verts[a]
         o = 1 - vside[a]
         px, py, pz = X[i, 0], X[i, 1], X[i, 2]

@@ -49,6 +49,27 @@ def volume_and_gradient(X, F, inc_ptr, inc, verts, g):
     return vol
 
 
+@nb.njit(cache=True)
+def _mobility(X, mob, Z, ZJ, ZL, ZS, fade, A, B, R, m):
+    """``m[ZL] = max over entries of mob[Z, j] * fade[j] * ramp``, with ramp 0
+    within the other side's flesh radius ``R`` of its bone, 1 past 1.5 R."""
+    for e in range(Z.shape[0]):
+        i, j, o = Z[e], ZJ[e], 1 - ZS[e]
+        ax, ay, az = A[j, o, 0], A[j, o, 1], A[j, o, 2]
+        ex, ey, ez = B[j, o, 0] - ax, B[j, o, 1] - ay, B[j, o, 2] - az
+        px, py, pz = X[i, 0] - ax, X[i, 1] - ay, X[i, 2] - az
+        ee = ex * ex + ey * ey + ez * ez
+        t = 0.0
+        if ee > 0.0:
+            t = min(1.0, max(0.0, (px * ex + py * ey + pz * ez) / ee))
+        dx, dy, dz = px - t * ex, py - t * ey, pz - t * ez
+        d = np.sqrt(dx * dx + dy * dy + dz * dz)
+        ramp = min(1.0, max(0.0, (d / max(R[j, o], 1e-9) - 1.0) / 0.5))
+        val = mob[e] * fade[j] * ramp
+        if val > m[ZL[e]]:
+            m[ZL[e]] = val
+
+
 class Volume(Stage):
     """Global volume constraint on the surface, moving the bent joints' regions."""
 
@@ -89,29 +110,31 @@ class Volume(Stage):
             return
         key = fr.bent.tobytes()
         if key != self._key:
-            self._key = key
-            self._verts = np.unique(np.concatenate([self.zone[j] for j in js]))
+            self._key, self._fold = key, {}
+            v = np.unique(np.concatenate([self.zone[j] for j in js]))
+            Z = np.concatenate([self.zone[j] for j in js])
+            ZJ = np.concatenate([np.full(len(self.zone[j]), j) for j in js])
+            mob = np.concatenate([self.mobility[self.zone[j], j] for j in js])
+            ZS = np.concatenate([self.side[j] for j in js])
+            self._verts, self._entries = v, (Z, ZJ, np.searchsorted(v, Z), ZS, mob)
         v = self._verts
+        Z, ZJ, ZL, ZS, mob = self._entries
         X = fr.surface
-        m = (self.mobility[v][:, js] * fr.fade[js]).max(axis=1)
+        J = len(fr.fade)
+        A = np.zeros((J, 2, 3))
+        B = np.zeros((J, 2, 3))
         for j in js:
-            # The fold stays where collision put it: no inflation within the other
-            # side's flesh radius, fading in up to 1.5 times that radius.
-            z, side = self.zone[j], self.side[j]
-            loc = np.searchsorted(v, z)
-            A, B = self.regions.posed_segments(j, fr.M)
-            for s_ in (0, 1):
-                o = 1 - s_
-                sel = side == s_
-                d = point_segment_distance(X[z[sel]], A[o:o + 1], B[o:o + 1])[:, 0]
-                R = max(self.regions.R[j, o], 1e-9)
-                m[loc[sel]] *= np.clip((d / R - 1.0) / 0.5, 0.0, 1.0)
+            A[j], B[j] = self.regions.posed_segments(j, fr.M)
+        m = np.zeros(len(v))
+        _mobility(X, mob, Z, ZJ, ZL, ZS, fr.fade, A, B, self.regions.R, m)
         for j in fr.counts.get("collision_joints", ()):
             # the region whose fold the collision stage resolved stays as it is
-            rv = np.unique(self.F[self.regions.tris[j]])
-            loc = np.searchsorted(v, rv)
-            ok = (loc < len(v)) & (v[np.minimum(loc, len(v) - 1)] == rv)
-            m[loc[ok]] = 0.0
+            if (key, j) not in self._fold:
+                rv = np.unique(self.F[self.regions.tris[j]])
+                loc = np.searchsorted(v, rv)
+                ok = (loc < len(v)) & (v[np.minimum(loc, len(v) - 1)] == rv)
+                self._fold[(key, j)] = loc[ok]
+            m[self._fold[(key, j)]] = 0.0
         g = np.empty((len(v), 3))
         vol = volume_and_gradient(X, self.F, self.inc_ptr, self.inc, v, g)
         # Move along unit normals n = g/|g| by lam * m: an even layer whatever the

@@ -1,0 +1,169 @@
+"""Character files: a closed surface mesh plus a skeleton, described in YAML.
+
+A character file names its mesh (any format trimesh reads: OBJ, PLY, STL, OFF,
+glTF without a skin; a relative path is relative to the YAML file) and lists
+the skeleton's joints, parents first, in metres::
+
+    mesh: arm.obj            # or inline: vertices: [[x, y, z], ...], faces: [[i, j, k], ...]
+    scale: 1.0               # optional, applied to the mesh and the joints
+    joints:
+      - {name: shoulder, position: [0.0, 0.0, 0.0]}
+      - {name: elbow, parent: shoulder, position: [0.27, 0.0, 0.0]}
+      - {name: wrist, parent: elbow, position: [0.50, 0.0, 0.0], tip: [0.60, 0.0, 0.0]}
+
+Every leaf joint needs a ``tip`` (where its bone ends). Optional per joint:
+``limits: [[min, max], [min, max], [min, max]]`` in radians for rx, ry, rz.
+Errors name the file and say what is wrong with it.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..skeleton import Skeleton
+
+
+class CharacterFileError(ValueError):
+    """A character file that cannot be used, with the reason."""
+
+
+def _fail(path: Path, msg: str):
+    raise CharacterFileError(f"{path}: {msg}")
+
+
+def load_character_file(path: Path):
+    """Read a character file.
+
+    Returns
+    -------
+    V : (n, 3) float, F : (m, 3) int, skeleton : Skeleton
+
+    Raises
+    ------
+    CharacterFileError
+        ``"<path>: <problem>"`` for a missing, empty or malformed file, an open,
+        non-manifold or degenerate mesh, NaN coordinates, or a skeleton with
+        unknown parents, cycles or duplicate names.
+    """
+    path = Path(path)
+    if not path.exists():
+        _fail(path, "no such file")
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as e:
+        _fail(path, f"cannot be read ({e.__class__.__name__}: {e})")
+    if not text.strip():
+        _fail(path, "file is empty")
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark else ""
+        _fail(path, f"malformed YAML{where}: {getattr(e, 'problem', e)}")
+    if not isinstance(doc, dict):
+        _fail(path, "expected a mapping with 'mesh' (or 'vertices' and 'faces') and 'joints'")
+    scale = float(doc.get("scale", 1.0))
+    V, F = _mesh(path, doc)
+    V = V * scale
+    check_surface(path, V, F)
+    return V, F, _skeleton(path, doc, scale)
+
+
+def _mesh(path: Path, doc: dict):
+    if "mesh" in doc:
+        mesh_path = (path.parent / str(doc["mesh"])).resolve()
+        if not mesh_path.exists():
+            _fail(path, f"mesh file {mesh_path} does not exist")
+        import trimesh
+        try:
+            m = trimesh.load(mesh_path, force="mesh", process=False)
+        except Exception as e:  # trimesh raises many kinds for bad files
+            _fail(path, f"mesh file {mesh_path} cannot be read ({e})")
+        V, F = np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
+        # Exporters split vertices at UV seams: merge by position for a closed surface.
+        V, inv = np.unique(np.round(V, 9), axis=0, return_inverse=True)
+        F = inv.reshape(-1)[F]
+    elif "vertices" in doc and "faces" in doc:
+        try:
+            V = np.asarray(doc["vertices"], dtype=float)
+            F = np.asarray(doc["faces"], dtype=np.int64)
+        except (TypeError, ValueError) as e:
+            _fail(path, f"vertices/faces are not numeric arrays ({e})")
+    else:
+        _fail(path, "needs 'mesh: <file>' or inline 'vertices' and 'faces'")
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
+        _fail(path, f"vertices must be an (n, 3) array, got shape {V.shape}")
+    if F.ndim != 2 or F.shape[1] != 3 or len(F) == 0:
+        _fail(path, f"faces must be an (m, 3) array of triangles, got shape {F.shape}")
+    return V, F
+
+
+def check_surface(path, V: np.ndarray, F: np.ndarray) -> None:
+    """Raise :class:`CharacterFileError` unless ``V, F`` is a closed, manifold,
+    consistently oriented surface with finite coordinates."""
+    if not np.all(np.isfinite(V)):
+        _fail(path, f"{int((~np.isfinite(V)).any(1).sum())} vertices have NaN or Inf coordinates")
+    if F.min() < 0 or F.max() >= len(V):
+        _fail(path, f"faces index vertices outside 0..{len(V) - 1}")
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    key = np.sort(E, axis=1)
+    _, counts = np.unique(key, axis=0, return_counts=True)
+    if np.any(counts == 1):
+        _fail(path, f"surface is open: {int((counts == 1).sum())} edges have one triangle "
+                    "(the deformer needs a closed surface)")
+    if np.any(counts > 2):
+        _fail(path, f"surface is non-manifold: {int((counts > 2).sum())} edges have more "
+                    "than two triangles")
+    _, dcounts = np.unique(E, axis=0, return_counts=True)
+    if np.any(dcounts > 1):
+        _fail(path, "triangles are not consistently oriented")
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    vol = float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
+    if not vol > 0:
+        _fail(path, f"surface encloses no positive volume ({vol:.3g} m^3): flip its triangles "
+                    "to face outwards")
+
+
+def _skeleton(path: Path, doc: dict, scale: float) -> Skeleton:
+    joints = doc.get("joints")
+    if not isinstance(joints, list) or not joints:
+        _fail(path, "needs a non-empty 'joints' list")
+    names, parents, pos, tips, limits = [], [], [], [], []
+    index = {}
+    for k, j in enumerate(joints):
+        if not isinstance(j, dict) or "name" not in j or "position" not in j:
+            _fail(path, f"joint {k} needs 'name' and 'position'")
+        name = str(j["name"])
+        if name in index:
+            _fail(path, f"joint '{name}' is listed twice")
+        parent = j.get("parent")
+        if parent is None:
+            if k != 0:
+                _fail(path, f"joint '{name}' has no parent; only the first joint is the root")
+            parents.append(-1)
+        else:
+            if str(parent) == name:
+                _fail(path, f"joint '{name}' is its own parent (a cycle)")
+            if str(parent) not in index:
+                later = {str(x.get("name")) for x in joints[k + 1:] if isinstance(x, dict)}
+                why = "is listed after it (list parents first; a cycle cannot be ordered)" \
+                    if str(parent) in later else "is not a joint of this file"
+                _fail(path, f"joint '{name}': parent '{parent}' {why}")
+            parents.append(index[str(parent)])
+        index[name] = k
+        names.append(name)
+        try:
+            pos.append(np.asarray(j["position"], float).reshape(3) * scale)
+            tips.append(np.asarray(j["tip"], float).reshape(3) * scale if "tip" in j
+                        else np.full(3, np.nan))
+            limits.append(np.asarray(j["limits"], float).reshape(3, 2) if "limits" in j
+                          else np.tile([-np.pi, np.pi], (3, 1)))
+        except (TypeError, ValueError) as e:
+            _fail(path, f"joint '{name}': position, tip and limits must be numbers ({e})")
+    try:
+        return Skeleton(names, np.array(parents), np.array(pos), tips=np.array(tips),
+                        limits=np.array(limits))
+    except ValueError as e:
+        _fail(path, f"skeleton: {e}")
