@@ -87,7 +87,7 @@ class JointRegions:
         tn = np.einsum("tij,tj->ti", M[self.tri_bone[t], :3, :3], self.tri_normal[t])
         return crossed_vertices(X, X0, F, self.verts[j], self.vside[j], t, self.tside[j], tn,
                                 A, B, self.R[j], 3.0 * self.edge, 0.5 * rad,
-                                max(2.0 * self.emax, 0.4 * rad))
+                                max(3.0 * self.edge, 0.25 * rad))
 
     def in_other(self, X: np.ndarray, M: np.ndarray, j: int) -> np.ndarray:
         """Per vertex of ``verts[j]``: within the other side's flesh radius of its bone."""
@@ -161,6 +161,21 @@ class Collision(Stage):
             n = -n
         return pj, n
 
+    def _halfspace(self, X, fr: Frame, j: int, plane, crossed, eps: float) -> int:
+        """Project the crossed vertices of joint ``j``'s region onto the plane, each
+        ``eps`` to its own side; with ``collision_halfspace`` (past the paper) also
+        every vertex of the interpenetration zone on the wrong side of it."""
+        regs = self.regions
+        v, sgn = regs.verts[j], 2.0 * regs.vside[j] - 1.0
+        pj, n = plane
+        move = np.zeros(len(v), dtype=bool) if crossed is None else crossed.copy()
+        if self.params["collision_halfspace"]:
+            dist = (X[v] - pj) @ n
+            move |= (sgn * dist < eps) & regs.in_other(X, fr.M, j)
+        dist = (X[v[move]] - pj) @ n
+        X[v[move]] -= (dist - sgn[move] * eps)[:, None] * n[None, :]
+        return int(move.sum())
+
     def __call__(self, fr: Frame) -> None:
         if not self.params["self_collision"]:
             return
@@ -170,8 +185,16 @@ class Collision(Stage):
         projected = pushed = 0
         joints = regs.active(fr.bent & (fr.angles > self.params["collision_angle"]))
         fr.counts["collision_joints"] = joints
+        upfront = self.params["collision_plane"] == "bisector" and \
+            self.params["collision_halfspace"]
         for j in joints:
             plane = None
+            if upfront:
+                # The bisector does not depend on where the skin crossed, so the
+                # half-space projection needs no detection pass before it.
+                plane = self._plane_normal(fr, j, fr.G[j, :3, 3])
+                if plane is not None:
+                    projected += self._halfspace(X, fr, j, plane, None, eps)
             for _ in range(int(self.params["collision_passes"])):
                 hit = regs.crossed(X, self.V0, self.F, fr.M, j)
                 crossed = hit != -1
@@ -186,16 +209,7 @@ class Collision(Stage):
                     plane = self._plane_normal(fr, j, X[far])
                     if plane is None:
                         break
-                    pj, n = plane
-                    move = crossed.copy()
-                    if self.params["collision_halfspace"]:
-                        # Past the paper: every vertex of the interpenetration zone on
-                        # the wrong side of the plane goes to it, not only the crossed.
-                        dist = (X[v] - pj) @ n
-                        move |= (sgn * dist < eps) & regs.in_other(X, fr.M, j)
-                    dist = (X[v[move]] - pj) @ n
-                    X[v[move]] -= (dist - sgn[move] * eps)[:, None] * n[None, :]
-                    projected += int(move.sum())
+                    projected += self._halfspace(X, fr, j, plane, crossed, eps)
                 elif self.params["collision_pushout"]:
                     # Residuals (creases the plane cannot separate): push each crossed
                     # vertex out in front of the skin it crossed, along that skin's normal.
