@@ -29,11 +29,12 @@ PRESETS = {
     "dqs": (("dqs",), {}),
     # Abu Rumman & Fratarcangeli 2015: PBD without the energy constraint.
     "pbs": (("lbs", "pbd"), {"solver": "pbd", "constraints": ["stretch", "volume", "bind"],
-                             "active_regions": False, "active_threshold": 0.0}),
+                             "active_regions": False, "active_threshold": 0.0,
+                             "iterations": 5, "warm_start": False}),
     # Chen & Pan 2017 as published: LBS start, plain PBD, its four constraints.
     "paper": (("lbs", "pbd", "collision", "smooth"),
               {"solver": "pbd", "active_regions": False, "active_threshold": 0.0,
-               "collision_halfspace": False, "collision_angle": 0.0,
+               "iterations": 5, "warm_start": False, "collision_halfspace": False, "collision_angle": 0.0,
                "smooth_mode": "position", "smoothing": 0.3, "smoothing_iterations": 1,
                "collision_pushout": False,
                "collision_plane": "paper", "volume_preserve": False,
@@ -81,7 +82,7 @@ class ParamSpec:
 
 
 PIPELINE_PARAMS = {
-    "iterations": ParamSpec(int, 5, 0, 200, "Gauss-Seidel iterations of the PBD solve per frame"),
+    "iterations": ParamSpec(int, 3, 0, 200, "Gauss-Seidel iterations of the PBD solve per frame"),
     "stiffness": ParamSpec(float, 0.5, 0.0, 1.0,
                            "energy-conservation spring constant k (the paper's 0.5)"),
     "solver": ParamSpec(str, "xpbd", description="'pbd' (stiffness scales each step, the paper) "
@@ -99,7 +100,7 @@ PIPELINE_PARAMS = {
     "energy_compliance": ParamSpec(float, 0.0, 0.0, 1e6, "XPBD compliance of energy springs"),
     "contact_angle": ParamSpec(float, 1.0, 0.0, 3.2,
                                "joints bent past this (rad) get a contact plane in the solve"),
-    "warm_start": ParamSpec(bool, False, description="start the solve from the last frame's "
+    "warm_start": ParamSpec(bool, True, description="start the solve from the last frame's "
                             "correction, carried by each vertex's main bone"),
     "tolerance": ParamSpec(float, 0.0, 0.0, 1.0,
                            "stop iterating once no vertex moved more than this (m); 0 = never"),

@@ -7,6 +7,10 @@ import numba as nb
 import numpy as np
 
 
+_OFFSETS = np.array(sorted(((a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)),
+                          key=lambda o: abs(o[0]) + abs(o[1]) + abs(o[2])), dtype=np.int64)
+
+
 @nb.njit(cache=True, inline="always")
 def _cell_hash(ix, iy, iz, size):
     h = (ix * 73856093) ^ (iy * 19349663) ^ (iz * 83492791)
@@ -157,31 +161,32 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, 
             continue
         ix, iy, iz = int(math.floor(px / h)), int(math.floor(py / h)), int(math.floor(pz / h))
         best, best_d, best_in, best_b = -1, h * h, False, -1
-        for dx in range(-1, 2):
-            for dy in range(-1, 2):
-                for dz in range(-1, 2):
-                    k = _cell_hash(ix + dx, iy + dy, iz + dz, size)
-                    for b in range(counts[k], counts[k + 1]):
-                        if iside[b] != o:
-                            continue
-                        cd = math.sqrt((px - geo[b, 0]) ** 2 + (py - geo[b, 1]) ** 2
-                                       + (pz - geo[b, 2]) ** 2) - geo[b, 3]
-                        if cd > 0.0 and cd * cd > best_d:
-                            continue
-                        rd = ((X0[i, 0] - geo[b, 4]) ** 2 + (X0[i, 1] - geo[b, 5]) ** 2
-                              + (X0[i, 2] - geo[b, 6]) ** 2)
-                        if rd < rest_sep * rest_sep:
-                            continue
-                        f = items[b]
-                        a0, a1, a2 = F[f, 0], F[f, 1], F[f, 2]
-                        if a0 == i or a1 == i or a2 == i:
-                            continue
-                        qx, qy, qz, inside = _closest_on_triangle(
-                            px, py, pz, X[a0, 0], X[a0, 1], X[a0, 2], X[a1, 0], X[a1, 1],
-                            X[a1, 2], X[a2, 0], X[a2, 1], X[a2, 2])
-                        d = (px - qx) ** 2 + (py - qy) ** 2 + (pz - qz) ** 2
-                        if d < best_d:
-                            best, best_d, best_in, best_b = f, d, inside, b
+        for c27 in range(27):
+            # the vertex's own cell first: an early near hit lets the bounding-sphere
+            # test reject most triangles of the other cells
+            dx, dy, dz = _OFFSETS[c27, 0], _OFFSETS[c27, 1], _OFFSETS[c27, 2]
+            k = _cell_hash(ix + dx, iy + dy, iz + dz, size)
+            for b in range(counts[k], counts[k + 1]):
+                if iside[b] != o:
+                    continue
+                cd = math.sqrt((px - geo[b, 0]) ** 2 + (py - geo[b, 1]) ** 2
+                               + (pz - geo[b, 2]) ** 2) - geo[b, 3]
+                if cd > 0.0 and cd * cd > best_d:
+                    continue
+                rd = ((X0[i, 0] - geo[b, 4]) ** 2 + (X0[i, 1] - geo[b, 5]) ** 2
+                      + (X0[i, 2] - geo[b, 6]) ** 2)
+                if rd < rest_sep * rest_sep:
+                    continue
+                f = items[b]
+                a0, a1, a2 = F[f, 0], F[f, 1], F[f, 2]
+                if a0 == i or a1 == i or a2 == i:
+                    continue
+                qx, qy, qz, inside = _closest_on_triangle(
+                    px, py, pz, X[a0, 0], X[a0, 1], X[a0, 2], X[a1, 0], X[a1, 1],
+                    X[a1, 2], X[a2, 0], X[a2, 1], X[a2, 2])
+                d = (px - qx) ** 2 + (py - qy) ** 2 + (pz - qz) ** 2
+                if d < best_d:
+                    best, best_d, best_in, best_b = f, d, inside, b
         if best < 0:
             # deep in the other side's flesh: near its bone, away from the joint
             # (segA[1] is the joint, where both bones start and the flesh is shared)
