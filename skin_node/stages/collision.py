@@ -64,6 +64,7 @@ class JointRegions:
         self.emax = float(e.max())
         self.radius = r.radius
         self._key, self._sets = None, None
+        self._n, self._ptr, self._adj, self._pos = len(character.V), r.adj_ptr, r.adj, None
 
     def rest_segments(self, j: int):
         """(2,3), (2,3): the parent side's bone into ``j`` and ``j``'s own bone."""
@@ -79,15 +80,33 @@ class JointRegions:
         return A, B
 
     def crossed(self, X: np.ndarray, X0: np.ndarray, F: np.ndarray, M: np.ndarray,
-                j: int) -> np.ndarray:
-        """Per vertex of ``verts[j]``: the crossed triangle, -2 deep inside, -1 not crossed."""
+                j: int, sub: np.ndarray | None = None) -> np.ndarray:
+        """Per vertex of ``verts[j]`` (or of its subset ``sub``, positions into
+        ``verts[j]``): the crossed triangle, -2 deep inside, -1 not crossed."""
         A, B = self.posed_segments(j, M)
         rad = self.radius[j]
         t = self.tris[j]
         tn = np.einsum("tij,tj->ti", M[self.tri_bone[t], :3, :3], self.tri_normal[t])
-        return crossed_vertices(X, X0, F, self.verts[j], self.vside[j], t, self.tside[j], tn,
+        v, side = self.verts[j], self.vside[j]
+        if sub is not None:
+            v, side = v[sub], side[sub]
+        return crossed_vertices(X, X0, F, v, side, t, self.tside[j], tn,
                                 A, B, self.R[j], 3.0 * self.edge, 0.5 * rad,
                                 max(3.0 * self.edge, 0.25 * rad))
+
+    def ring(self, j: int, sub: np.ndarray) -> np.ndarray:
+        """Positions into ``verts[j]`` of ``sub`` and its one-ring neighbours in the region."""
+        if self._pos is None:
+            self._pos = {}
+        if j not in self._pos:
+            pos = -np.ones(self._n, dtype=np.int64)
+            pos[self.verts[j]] = np.arange(len(self.verts[j]))
+            self._pos[j] = pos
+        pos = self._pos[j]
+        ids = self.verts[j][sub]
+        nb = np.concatenate([self._adj[self._ptr[i]:self._ptr[i + 1]] for i in ids] + [ids])
+        p = pos[nb]
+        return np.unique(p[p >= 0])
 
     def in_other(self, X: np.ndarray, M: np.ndarray, j: int) -> np.ndarray:
         """Per vertex of ``verts[j]``: within the other side's flesh radius of its bone."""
@@ -195,12 +214,17 @@ class Collision(Stage):
                 plane = self._plane_normal(fr, j, fr.G[j, :3, 3])
                 if plane is not None:
                     projected += self._halfspace(X, fr, j, plane, None, eps)
+            sub = None
             for _ in range(int(self.params["collision_passes"])):
-                hit = regs.crossed(X, self.V0, self.F, fr.M, j)
+                # After a push-out only the pushed vertices and their neighbours can
+                # still cross: later passes check just those.
+                hit = regs.crossed(X, self.V0, self.F, fr.M, j, sub)
                 crossed = hit != -1
                 if not crossed.any():
                     break
                 v, side = regs.verts[j], regs.vside[j]
+                if sub is not None:
+                    v, side = v[sub], side[sub]
                 sgn = 2.0 * side - 1.0
                 if plane is None:
                     pj = fr.G[j, :3, 3]
@@ -210,6 +234,7 @@ class Collision(Stage):
                     if plane is None:
                         break
                     projected += self._halfspace(X, fr, j, plane, crossed, eps)
+                    sub = None
                 elif self.params["collision_pushout"]:
                     # Residuals (creases the plane cannot separate): push each crossed
                     # vertex out in front of the skin it crossed, along that skin's normal.
@@ -225,6 +250,8 @@ class Collision(Stage):
                     dist = (X[v[deep]] - pj) @ n
                     X[v[deep]] -= (dist - sgn[deep] * eps)[:, None] * n[None, :]
                     pushed += int(crossed.sum())
+                    where = np.flatnonzero(crossed) if sub is None else sub[crossed]
+                    sub = regs.ring(j, where)
                 else:
                     break
         fr.counts["projected"] = projected
