@@ -1,0 +1,675 @@
+"""Automatic skeleton embedding: place a template skeleton inside a closed mesh.
+
+The paper's first set-up step (it used Baran & Popović's Pinocchio). This is a
+lighter, deterministic method in the same spirit:
+
+1. **Frame.** The template has a known forward, left and up axis (x, y, z of its
+   unit box). The mesh's left axis is its mirror-symmetry axis (tested among the
+   coordinate axes); up and forward are the other two, told apart by the
+   template's ``long_axis`` (the longer extent), the up sign by which end has
+   more separate parts (feet or hooves at the bottom) and the forward sign by the
+   template's ``forward_cue``. ``up=`` / ``forward=`` override any of this.
+2. **Scale.** Template positions (normalised to a unit box) are scaled per axis
+   to the mesh's bounding box in that frame: a first guess.
+3. **Interior.** The mesh is voxelised (ray parity along z) and a distance
+   field is computed inside; a graph over interior voxels whose edges cost
+   ``length / depth^2`` makes shortest paths follow the medial axis.
+4. **Trunk joints** (the root and every joint with several children) move to the
+   centroid of the mesh's cross-section through them, perpendicular to their
+   bone, restricted to the connected piece around the joint.
+5. **Limbs.** Each leaf's far end is the interior extremity around the scaled
+   template tip in the direction of its bone; its tip is pulled back from that
+   extremity by the local radius. The chain from the nearest trunk joint to the
+   tip is laid along the medial path between them, each joint at the fraction
+   of the path's length that it has of the template chain's length. Joints
+   between two trunk joints are laid on the medial path between those.
+6. **Symmetry and inside.** On a mirror-symmetric mesh, left/right pairs are
+   made exactly symmetric; every joint and tip is then checked inside with the
+   generalised winding number and moved to the nearest deep voxel if not.
+
+The skeleton's root gets the rest rotation whose columns are the mesh's forward,
+left and up axes, so every rotation channel turns about the template's axes
+(``*_ry`` swings a leg fore and aft) whatever way the mesh faces; the root
+translation channels stay in world axes.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numba
+import numpy as np
+import scipy.ndimage as ndi
+import scipy.sparse as sp
+from scipy.sparse.csgraph import dijkstra
+
+from ..kernels.collision import _closest_on_triangle
+from ..skeleton import Skeleton
+
+#: Where template names (``"humanoid"``, ``"quadruped"``) are looked up.
+TEMPLATE_DIRS = (Path(__file__).resolve().parents[2] / "config" / "templates",)
+
+#: Interior voxels aimed at: enough to resolve a humanoid's wrist, fast to path.
+TARGET_VOXELS = 60000
+
+
+# ------------------------------------------------------------------ templates
+@dataclass
+class Template:
+    """A template skeleton in a unit box (x forward, y left, z up).
+
+    Attributes
+    ----------
+    name : str
+    names : list of str, (J,)
+    parents : (J,) int
+    positions : (J, 3) float
+        Joint positions normalised to the character's bounding box, in [0, 1].
+    tips : (J, 3) float
+        Normalised tips of leaf joints, NaN for the others.
+    limits : (J, 3, 2) float
+        Channel limits, radians.
+    long_axis : str
+        ``"up"`` or ``"forward"``: the longer extent within the symmetry plane.
+    forward_cue : str
+        ``"feet"`` (the bottom points forward) or ``"head"`` (the top end is the front).
+    limb_root : (J,) bool
+        Joints placed where their limb leaves the trunk (where the limb's
+        thickness along its medial path rises above 1.4 times its typical
+        radius) instead of at a fraction of the chain: right for legs whose
+        length differs a lot from the template's (a cow's stubby legs).
+    """
+
+    name: str
+    names: list
+    parents: np.ndarray
+    positions: np.ndarray
+    tips: np.ndarray
+    limits: np.ndarray
+    long_axis: str = "up"
+    forward_cue: str = "feet"
+    limb_root: np.ndarray | None = None
+
+
+def template_path(template: str | Path) -> Path:
+    """The file of a template given by name (``"quadruped"``) or path."""
+    p = Path(template)
+    if p.suffix in (".yaml", ".yml") or p.exists():
+        return p
+    for d in TEMPLATE_DIRS + _installed_template_dirs():
+        if (d / f"{template}.yaml").exists():
+            return d / f"{template}.yaml"
+    known = sorted({f.stem for d in TEMPLATE_DIRS + _installed_template_dirs()
+                    if d.is_dir() for f in d.glob("*.yaml")})
+    raise ValueError(f"{template}: unknown skeleton template (known: {known}, or a YAML path)")
+
+
+def _installed_template_dirs() -> tuple:
+    try:  # an installed package keeps its templates in share/
+        from ament_index_python.packages import get_package_share_directory
+        return (Path(get_package_share_directory("skin_node")) / "config" / "templates",)
+    except Exception:
+        return ()
+
+
+def load_template(template: str | Path) -> Template:
+    """Read a template skeleton file (see ``config/templates/*.yaml``).
+
+    Raises
+    ------
+    ValueError
+        ``"<file>: <problem>"`` for a missing or malformed template.
+    """
+    import yaml
+    path = template_path(template)
+    if not path.exists():
+        raise ValueError(f"{path}: no such template file")
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as e:
+        raise ValueError(f"{path}: cannot be read as YAML ({e})") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("joints"), list) or not doc["joints"]:
+        raise ValueError(f"{path}: a template needs a non-empty 'joints' list")
+    names, parents, pos, tips, lim, root = [], [], [], [], [], []
+    for k, j in enumerate(doc["joints"]):
+        if not isinstance(j, dict) or "name" not in j or "position" not in j:
+            raise ValueError(f"{path}: joint {k} needs 'name' and 'position'")
+        name = str(j["name"])
+        if name in names:
+            raise ValueError(f"{path}: joint '{name}' is listed twice")
+        par = j.get("parent")
+        if (par is None) != (k == 0):
+            raise ValueError(f"{path}: joint '{name}': only the first joint has no parent")
+        if par is not None and str(par) not in names:
+            raise ValueError(f"{path}: joint '{name}': parent '{par}' is not listed before it")
+        names.append(name)
+        root.append(bool(j.get("limb_root", False)))
+        parents.append(-1 if par is None else names.index(str(par)))
+        try:
+            pos.append(np.asarray(j["position"], float).reshape(3))
+            tips.append(np.asarray(j["tip"], float).reshape(3) if "tip" in j else np.full(3, np.nan))
+            lim.append(np.asarray(j["limits"], float).reshape(3, 2) if "limits" in j
+                       else np.tile([-np.pi, np.pi], (3, 1)))
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"{path}: joint '{name}': position, tip and limits must be "
+                             f"numbers ({e})") from None
+    long_axis = str(doc.get("long_axis", "up"))
+    cue = str(doc.get("forward_cue", "feet"))
+    if long_axis not in ("up", "forward") or cue not in ("feet", "head"):
+        raise ValueError(f"{path}: long_axis must be up|forward and forward_cue feet|head")
+    t = Template(str(doc.get("name", path.stem)), names, np.array(parents), np.array(pos),
+                 np.array(tips), np.array(lim), long_axis, cue, np.array(root))
+    has_child = np.zeros(len(names), bool)
+    has_child[t.parents[1:]] = True
+    bad = [n for n, c, tp in zip(names, has_child, t.tips) if not c and not np.isfinite(tp).all()]
+    if bad:
+        raise ValueError(f"{path}: leaf joints {bad} need a 'tip'")
+    return t
+
+
+# ------------------------------------------------------------------ interior
+@numba.njit(cache=True)
+def _ray_hits(V, F, x0, y0, h, nx, ny):
+    """z of every crossing of the mesh by vertical rays through voxel columns."""
+    cols = []
+    zs = []
+    for t in range(F.shape[0]):
+        a, b, c = V[F[t, 0]], V[F[t, 1]], V[F[t, 2]]
+        i0 = max(int(np.ceil((min(a[0], b[0], c[0]) - x0) / h)), 0)
+        i1 = min(int(np.floor((max(a[0], b[0], c[0]) - x0) / h)), nx - 1)
+        j0 = max(int(np.ceil((min(a[1], b[1], c[1]) - y0) / h)), 0)
+        j1 = min(int(np.floor((max(a[1], b[1], c[1]) - y0) / h)), ny - 1)
+        det = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1])
+        if det == 0.0:
+            continue
+        for i in range(i0, i1 + 1):
+            px = x0 + i * h
+            for j in range(j0, j1 + 1):
+                py = y0 + j * h
+                u = ((b[0] - px) * (c[1] - py) - (c[0] - px) * (b[1] - py)) / det
+                v = ((c[0] - px) * (a[1] - py) - (a[0] - px) * (c[1] - py)) / det
+                w = 1.0 - u - v
+                if u >= 0.0 and v >= 0.0 and w >= 0.0:
+                    cols.append(i * ny + j)
+                    zs.append(u * a[2] + v * b[2] + w * c[2])
+    return np.array(cols, dtype=np.int64), np.array(zs, dtype=np.float64)
+
+
+def _voxelize(V, F, lo, h, shape):
+    """(nx, ny, nz) bool: voxel centres inside the closed surface (ray parity along z)."""
+    nx, ny, nz = shape
+    cols, zs = _ray_hits(V, F, lo[0], lo[1], h, nx, ny)
+    inside = np.zeros(shape, dtype=bool)
+    order = np.lexsort((zs, cols))
+    cols, zs = cols[order], zs[order]
+    starts = np.flatnonzero(np.r_[True, cols[1:] != cols[:-1]])
+    ends = np.r_[starts[1:], len(cols)]
+    zc = lo[2] + h * np.arange(nz)
+    for s, e in zip(starts, ends):
+        if (e - s) % 2:          # a ray grazing an edge: skip the column, rare
+            continue
+        i, j = divmod(int(cols[s]), ny)
+        k = np.searchsorted(zs[s:e], zc)
+        inside[i, j] = (k % 2) == 1
+    return inside
+
+
+def winding_numbers(P: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(k,) generalised winding number of points ``P`` (k, 3): ~1 inside, ~0 outside."""
+    P = np.atleast_2d(P)
+    out = np.empty(len(P))
+    for s in range(0, len(P), 64):
+        a = V[F[:, 0]][None] - P[s:s + 64, None]
+        b = V[F[:, 1]][None] - P[s:s + 64, None]
+        c = V[F[:, 2]][None] - P[s:s + 64, None]
+        la, lb, lc = (np.linalg.norm(x, axis=2) for x in (a, b, c))
+        det = np.einsum("pti,pti->pt", a, np.cross(b, c))
+        den = (la * lb * lc + np.einsum("pti,pti->pt", a, b) * lc
+               + np.einsum("pti,pti->pt", b, c) * la + np.einsum("pti,pti->pt", c, a) * lb)
+        out[s:s + 64] = np.arctan2(det, den).sum(1) / (2.0 * np.pi)
+    return out
+
+
+@numba.njit(cache=True)
+def _surface_distance(P, V, F):
+    out = np.empty(P.shape[0])
+    for i in range(P.shape[0]):
+        best = np.inf
+        px, py, pz = P[i, 0], P[i, 1], P[i, 2]
+        for t in range(F.shape[0]):
+            a, b, c = F[t, 0], F[t, 1], F[t, 2]
+            qx, qy, qz, _ = _closest_on_triangle(px, py, pz, V[a, 0], V[a, 1], V[a, 2],
+                                                 V[b, 0], V[b, 1], V[b, 2],
+                                                 V[c, 0], V[c, 1], V[c, 2])
+            d = (qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2
+            if d < best:
+                best = d
+        out[i] = np.sqrt(best)
+    return out
+
+
+def surface_distance(P: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(k,) distance from points ``P`` (k, 3) to the surface ``V, F``, metres (brute force:
+    meant for a skeleton's few dozen points)."""
+    P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
+    return _surface_distance(P, np.ascontiguousarray(V, dtype=np.float64),
+                             np.ascontiguousarray(F, dtype=np.int64))
+
+
+class _Interior:
+    """Voxel interior of a closed mesh with a distance field and a medial graph."""
+
+    def __init__(self, V, F, target_voxels=TARGET_VOXELS):
+        vol = abs(float(np.einsum("ij,ij->i", V[F[:, 0]],
+                                  np.cross(V[F[:, 1]], V[F[:, 2]])).sum()) / 6.0)
+        ext = V.max(0) - V.min(0)
+        h = max((vol / target_voxels) ** (1.0 / 3.0), float(ext.max()) / 256.0)
+        # An irrational offset keeps rays off vertices and edges of axis-aligned meshes.
+        self.h = h
+        self.lo = V.min(0) - 1.5 * h + h * np.array([0.2137, 0.3719, 0.1])
+        shape = tuple(int(n) for n in np.ceil((V.max(0) + 1.5 * h - self.lo) / h) + 1)
+        self.inside = _voxelize(V, F, self.lo, h, shape)
+        if self.inside.sum() < 8:
+            raise ValueError("the mesh encloses too little volume to embed a skeleton in")
+        self.dist = ndi.distance_transform_edt(self.inside) * h
+        self.idx = np.argwhere(self.inside)                    # (N, 3) voxel indices
+        self.pts = self.lo + h * self.idx                      # (N, 3) voxel centres
+        self.d = self.dist[self.inside]                        # (N,) depth
+        lut = -np.ones(shape, dtype=np.int64)
+        lut[self.inside] = np.arange(len(self.idx))
+        self.lut = lut
+        self._graph = None
+
+    def graph(self):
+        if self._graph is None:
+            rows, cols, w = [], [], []
+            shape = np.array(self.inside.shape)
+            for off in np.argwhere(np.ones((3, 3, 3))) - 1:
+                if tuple(off) <= (0, 0, 0):
+                    continue            # each undirected edge once
+                nb = self.idx + off
+                ok = np.all((nb >= 0) & (nb < shape), axis=1)
+                a = np.flatnonzero(ok)
+                b = self.lut[tuple(nb[ok].T)]
+                keep = b >= 0
+                a, b = a[keep], b[keep]
+                depth = 0.5 * (self.d[a] + self.d[b])
+                # length / depth^2: the cheapest path hugs the medial axis.
+                rows.append(a)
+                cols.append(b)
+                w.append(self.h * np.linalg.norm(off) / depth ** 2)
+            r, c, ww = np.concatenate(rows), np.concatenate(cols), np.concatenate(w)
+            n = len(self.idx)
+            self._graph = sp.coo_matrix((ww, (r, c)), shape=(n, n)).tocsr()
+        return self._graph
+
+    def nearest(self, p, min_depth=0.0):
+        """Index of the interior voxel nearest to ``p`` with depth >= ``min_depth``."""
+        ok = self.d >= min_depth
+        cand = np.flatnonzero(ok) if ok.any() else np.arange(len(self.d))
+        return int(cand[np.argmin(((self.pts[cand] - p) ** 2).sum(1))])
+
+    def paths(self, src: int, dst: list) -> list:
+        """Medial paths (voxel index arrays, src first) from ``src`` to each of ``dst``."""
+        _, pred = dijkstra(self.graph(), directed=False, indices=src, return_predecessors=True)
+        out = []
+        for t in dst:
+            path = [t]
+            while path[-1] != src and pred[path[-1]] >= 0:
+                path.append(pred[path[-1]])
+            out.append(np.array(path[::-1]))
+        return out
+
+    def section_centre(self, p, d, radius):
+        """Medial centre of the interior's slab through ``p`` perpendicular to unit
+        ``d``: the mean of its deepest voxels (within half a voxel of the deepest),
+        among those within ``radius`` of ``p`` in the connected piece nearest ``p``."""
+        rel = self.pts - p
+        along = rel @ d
+        near = np.flatnonzero((np.abs(along) <= 0.75 * self.h)
+                              & ((rel ** 2).sum(1) <= radius ** 2))
+        if len(near) == 0:
+            return p
+        sub = self.idx[near]
+        mn = sub.min(0)
+        mask = np.zeros(tuple(sub.max(0) - mn + 1), dtype=bool)
+        mask[tuple((sub - mn).T)] = True
+        lab, _ = ndi.label(mask, structure=np.ones((3, 3, 3)))
+        labels = lab[tuple((sub - mn).T)]
+        seed = np.argmin((rel[near] ** 2).sum(1))
+        piece = near[labels == labels[seed]]
+        deep = piece[self.d[piece] >= self.d[piece].max() - 0.5 * self.h]
+        c = self.pts[deep].mean(0)
+        c -= ((c - p) @ d) * d          # stay in the plane through p
+        return c
+
+
+# ------------------------------------------------------------------ the frame
+_AXES = np.eye(3)
+
+
+def _unit(v, what):
+    v = np.asarray(v, float).reshape(3)
+    n = np.linalg.norm(v)
+    if not n > 0:
+        raise ValueError(f"{what} must be a non-zero 3-vector, got {v}")
+    return v / n
+
+
+def _axis_arg(v, what):
+    if v is None:
+        return None
+    if isinstance(v, str):
+        s = v.strip().lower()
+        sign = -1.0 if s.startswith("-") else 1.0
+        s = s.lstrip("+-")
+        if s not in ("x", "y", "z"):
+            raise ValueError(f"{what} must be x, y, z (optionally signed) or a vector, got {v!r}")
+        return sign * _AXES["xyz".index(s)]
+    return _unit(v, what)
+
+
+def _mirror_error(V, axis, centre):
+    """Mean distance from the vertices mirrored about a plane to the surface vertices."""
+    from scipy.spatial import cKDTree
+    M = V - 2.0 * np.outer((V - centre) @ axis, axis)
+    return float(cKDTree(V).query(M)[0].mean())
+
+
+def _end_parts(V, F, axis, end, frac=0.06):
+    """Connected surface pieces within ``frac`` of the extent at one end of ``axis``."""
+    s = V @ axis
+    lo, hi = s.min(), s.max()
+    sel = s <= lo + frac * (hi - lo) if end < 0 else s >= hi - frac * (hi - lo)
+    tri = F[sel[F].all(1)]
+    if len(tri) == 0:
+        return int(sel.sum() > 0), V[sel].mean(0) if sel.any() else V.mean(0)
+    n = len(V)
+    g = sp.coo_matrix((np.ones(3 * len(tri)), (tri.ravel(), np.roll(tri, 1, 1).ravel())),
+                      shape=(n, n))
+    _, lab = sp.csgraph.connected_components(g, directed=False)
+    used = np.unique(tri)
+    return len(np.unique(lab[used])), V[sel].mean(0)
+
+
+def mesh_frame(V, F, tmpl: Template, up=None, forward=None) -> np.ndarray:
+    """(3, 3) rotation whose columns are the mesh's forward, left and up axes.
+
+    ``up`` / ``forward``: ``"x"``, ``"-z"``, ... or vectors; those not given are
+    detected (see the module docstring).
+    """
+    up, forward = _axis_arg(up, "up"), _axis_arg(forward, "forward")
+    centre = 0.5 * (V.min(0) + V.max(0))
+    if up is not None and forward is not None:
+        forward = forward - (forward @ up) * up
+        if np.linalg.norm(forward) < 1e-6:
+            raise ValueError("up and forward must not be parallel")
+        forward /= np.linalg.norm(forward)
+    elif up is not None or forward is not None:
+        given = up if up is not None else forward
+        cand = [a for a in _AXES if abs(a @ given) < 0.9]
+        left = min(cand, key=lambda a: _mirror_error(V, a, centre))
+        other = np.cross(left, given)
+        other /= np.linalg.norm(other)
+        if up is not None:
+            forward = _forward_sign(V, F, tmpl, other, up)
+        else:
+            up = _up_sign(V, F, other)
+    else:
+        left = min(_AXES, key=lambda a: _mirror_error(V, a, centre))
+        rest = [a for a in _AXES if abs(a @ left) < 0.5]
+        ext = [np.ptp(V @ a) for a in rest]
+        longer, shorter = (rest[0], rest[1]) if ext[0] >= ext[1] else (rest[1], rest[0])
+        if tmpl.long_axis == "up":
+            up = _up_sign(V, F, longer)
+            forward = _forward_sign(V, F, tmpl, shorter, up)
+        else:
+            up = _up_sign(V, F, shorter)
+            forward = _forward_sign(V, F, tmpl, longer, up)
+    left = np.cross(up, forward)
+    return np.column_stack([forward, left / np.linalg.norm(left), up])
+
+
+def _up_sign(V, F, axis):
+    """``axis`` or its opposite: the bottom has more separate parts (feet, hooves)."""
+    n_lo, _ = _end_parts(V, F, axis, -1)
+    n_hi, _ = _end_parts(V, F, axis, +1)
+    if n_lo != n_hi:
+        return axis if n_lo > n_hi else -axis
+    # A tie: the centroid of the surface is nearer the top (heavier trunk, thin legs).
+    s = V @ axis
+    return axis if s.mean() >= 0.5 * (s.min() + s.max()) else -axis
+
+
+def _forward_sign(V, F, tmpl, axis, up):
+    """``axis`` or its opposite, by the template's cue: feet point forward, or the
+    top end of the body is the head."""
+    _, c_end = _end_parts(V, F, up, -1 if tmpl.forward_cue == "feet" else +1)
+    return axis if (c_end - V.mean(0)) @ axis >= 0 else -axis
+
+
+# ------------------------------------------------------------------ embedding
+def _arc(P):
+    return np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))]
+
+
+def _at_fraction(P, s, f):
+    """Point at arc-length fraction ``f`` of the polyline ``P`` with arc lengths ``s``."""
+    if s[-1] <= 0:
+        return P[0].copy()
+    t = f * s[-1]
+    k = int(np.clip(np.searchsorted(s, t) - 1, 0, len(P) - 2))
+    u = (t - s[k]) / max(s[k + 1] - s[k], 1e-12)
+    return P[k] + np.clip(u, 0, 1) * (P[k + 1] - P[k])
+
+
+def _smooth(P, passes=3):
+    """Soften a voxel staircase path (ends fixed)."""
+    P = P.astype(float).copy()
+    for _ in range(passes):
+        if len(P) > 2:
+            P[1:-1] = 0.25 * P[:-2] + 0.5 * P[1:-1] + 0.25 * P[2:]
+    return P
+
+
+def embed_skeleton(V: np.ndarray, F: np.ndarray, template: str | Path | Template,
+                   up=None, forward=None, symmetric: bool | None = None) -> Skeleton:
+    """Place a template skeleton inside a closed mesh.
+
+    Parameters
+    ----------
+    V : (n, 3) float
+        Closed surface vertices, metres (merged by position).
+    F : (m, 3) int
+        Outward triangles.
+    template : str, Path or Template
+        ``"humanoid"``, ``"quadruped"`` or a template YAML file.
+    up, forward : str or (3,) float, optional
+        The mesh's up and forward directions (``"y"``, ``"-z"`` or vectors);
+        detected when not given.
+    symmetric : bool, optional
+        Make left/right joint pairs mirror images; default: when the mesh is
+        mirror-symmetric about its left axis (within 1% of its size).
+
+    Returns
+    -------
+    Skeleton
+        The template's joints, limits and tips placed inside the mesh; the root's
+        rest rotation has the mesh's forward, left and up axes as columns.
+    """
+    V = np.asarray(V, float)
+    F = np.asarray(F, np.int64)
+    tmpl = template if isinstance(template, Template) else load_template(template)
+    A = mesh_frame(V, F, tmpl, up, forward)
+    Q = V @ A                                   # template-frame coordinates
+    qlo, qhi = Q.min(0), Q.max(0)
+
+    def scaled(p):
+        return (qlo + np.asarray(p) * (qhi - qlo)) @ A.T
+
+    J = len(tmpl.names)
+    par = tmpl.parents
+    kids = [[] for _ in range(J)]
+    for j in range(1, J):
+        kids[par[j]].append(j)
+    guess = scaled(tmpl.positions)
+    tip_guess = np.where(np.isfinite(tmpl.tips), scaled(np.nan_to_num(tmpl.tips)), np.nan)
+    vol = _Interior(V, F)
+    h = vol.h
+
+    pos = np.full((J, 3), np.nan)
+    tips = np.full((J, 3), np.nan)
+    anchors = [j for j in range(J) if j == 0 or len(kids[j]) > 1]
+    # Trunk joints: the cross-section centre, perpendicular to their bone.
+    for j in anchors:
+        if j == 0:
+            heavy = max(kids[0], key=lambda c: _subtree_size(kids, c)) if kids[0] else None
+            d = guess[heavy] - guess[0] if heavy is not None else A[:, 2]
+        else:
+            d = guess[j] - guess[par[j]]
+        d = d / (np.linalg.norm(d) + 1e-12)
+        k = vol.nearest(guess[j], min_depth=0.5 * vol.d.max() * 0.25)
+        radius = 2.5 * vol.d[k] + 2 * h
+        c = vol.section_centre(vol.pts[k], d, radius)
+        pos[j] = vol.pts[vol.nearest(c)] if not _inside_voxel(vol, c) else c
+
+    def anchor_of(j):
+        a = par[j]
+        while a not in anchors:
+            a = par[a]
+        return a
+
+    # Chains: from an anchor down to the next anchor or to a leaf's tip.
+    for a in anchors:
+        ends, chains = [], []
+        for c in kids[a]:
+            chain = [c]
+            while len(kids[chain[-1]]) == 1 and chain[-1] not in anchors:
+                chain.append(kids[chain[-1]][0])
+            last = chain[-1]
+            if last in anchors:
+                chains.append((chain[:-1], last, None))
+                ends.append(vol.nearest(pos[last]))
+            else:
+                e = _extremity(vol, guess[last], tip_guess[last], guess[a])
+                chains.append((chain, None, e))
+                ends.append(e)
+        if not chains:
+            continue
+        src = vol.nearest(pos[a])
+        for (chain, end_anchor, e), path in zip(chains, vol.paths(src, ends)):
+            P = _smooth(vol.pts[path])
+            P[0] = pos[a]
+            if end_anchor is not None:
+                P[-1] = pos[end_anchor]
+                ref = np.vstack([guess[a], guess[chain], guess[end_anchor]])
+            else:
+                P = _pull_back(vol, P, path)
+                tips[chain[-1]] = P[-1]
+                ref = np.vstack([guess[a], guess[chain], tip_guess[chain[-1]]])
+            if end_anchor is None and tmpl.limb_root is not None and tmpl.limb_root[chain[0]]:
+                k = _limb_root(vol.d[path[:len(P)]])
+                pos[chain[0]] = P[k]
+                P, ref, chain = P[k:], ref[1:], chain[1:]
+            sref, s = _arc(ref), _arc(P)
+            for i, j in enumerate(chain):
+                pos[j] = _at_fraction(P, s, sref[i + 1] / max(sref[-1], 1e-12))
+
+    if symmetric is None:
+        centre = 0.5 * (V.min(0) + V.max(0))
+        symmetric = _mirror_error(V, A[:, 1], centre) < 0.01 * np.linalg.norm(np.ptp(V, 0))
+    if symmetric:
+        pos, tips = _symmetrise(tmpl.names, pos, tips, A, Q, V, F)
+
+    pos, tips = _keep_inside(vol, V, F, pos, tips)
+    rest = np.tile(np.eye(3), (J, 1, 1))
+    rest[0] = A
+    return Skeleton(list(tmpl.names), par.copy(), pos, rest_rotations=rest, tips=tips,
+                    limits=tmpl.limits.copy())
+
+
+def _subtree_size(kids, j):
+    return 1 + sum(_subtree_size(kids, c) for c in kids[j])
+
+
+def _inside_voxel(vol, p):
+    i = np.round((p - vol.lo) / vol.h).astype(int)
+    if np.any(i < 0) or np.any(i >= vol.inside.shape):
+        return False
+    return bool(vol.inside[tuple(i)])
+
+
+def _extremity(vol, leaf, tip, base):
+    """Interior voxel farthest along the leaf's bone near its scaled template tip,
+    penalising sideways offset (so the neighbouring limb does not win)."""
+    d = tip - leaf
+    d /= np.linalg.norm(d) + 1e-12
+    reach = max(2.0 * np.linalg.norm(tip - leaf), 0.6 * np.linalg.norm(tip - base))
+    rel = vol.pts - tip
+    near = np.flatnonzero((rel ** 2).sum(1) <= reach ** 2)
+    if len(near) == 0:
+        return vol.nearest(tip)
+    along = rel[near] @ d
+    side = np.linalg.norm(rel[near] - np.outer(along, d), axis=1)
+    return int(near[np.argmax(along - 0.5 * side)])
+
+
+def _limb_root(depth):
+    """Index along a trunk-to-tip medial path where the limb joins the trunk: the
+    last point deeper than 1.4 times the limb's typical radius (the median depth
+    of the path's last 40%)."""
+    n = len(depth)
+    r = np.median(depth[int(0.6 * n):])
+    thick = np.flatnonzero(depth[: max(n - 2, 1)] > 1.4 * r)
+    return int(thick[-1]) if len(thick) else 0
+
+
+def _pull_back(vol, P, path):
+    """Cut the path back from the extremity by the local radius: the tip sits in
+    the end cap's centre, not at the skin."""
+    s = _arc(P)
+    rem = s[-1] - s
+    d = vol.d[path]
+    ok = np.flatnonzero(rem >= d)
+    k = ok[-1] if len(ok) else 0
+    return P[:max(k, 1) + 1]
+
+
+def _symmetrise(names, pos, tips, A, Q, V, F):
+    """Mirror-average left/right pairs (``l_*`` / ``r_*``) and centre the others."""
+    c = 0.5 * (Q[:, 1].min() + Q[:, 1].max())
+    left = A[:, 1]
+
+    def mirror(p):
+        return p - 2.0 * ((p @ left) - c)[..., None] * left
+
+    pos, tips = pos.copy(), tips.copy()
+    idx = {n: i for i, n in enumerate(names)}
+    for n, i in idx.items():
+        if n.startswith("l_") and "r_" + n[2:] in idx:
+            k = idx["r_" + n[2:]]
+            for arr in (pos, tips):
+                if np.isfinite(arr[i]).all() and np.isfinite(arr[k]).all():
+                    a = 0.5 * (arr[i] + mirror(arr[k]))
+                    arr[i], arr[k] = a, mirror(a)
+        elif not n.startswith("r_"):
+            for arr in (pos, tips):
+                if np.isfinite(arr[i]).all():
+                    arr[i] = arr[i] - ((arr[i] @ left) - c) * left
+    return pos, tips
+
+
+def _keep_inside(vol, V, F, pos, tips):
+    """Move any joint or tip outside (or within a quarter voxel of) the skin to
+    the nearest voxel at least a voxel deep."""
+    pts = np.vstack([pos, tips])
+    fin = np.isfinite(pts).all(1)
+    P = pts[fin]
+    w = winding_numbers(P, V, F)
+    depth = surface_distance(P, V, F)
+    bad = (w < 0.5) | (depth < 0.25 * vol.h)
+    for i in np.flatnonzero(bad):
+        P[i] = vol.pts[vol.nearest(P[i], min_depth=min(vol.h, 0.5 * vol.d.max()))]
+    pts[fin] = P
+    J = len(pos)
+    return pts[:J], pts[J:]
