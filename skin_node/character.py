@@ -90,13 +90,15 @@ def _builtin_skeleton(make, surface_vertices: int) -> Skeleton:
 
 def load_character(spec: str, surface_vertices: int | None = None, tet_count: int | None = None,
                    options: RigOptions | None = None, cache: bool = True,
-                   progress: bool = True) -> Character:
+                   progress: bool = True, weights: str = "automatic") -> Character:
     """Build a built-in character or load one from a file, with its rig.
 
     Parameters
     ----------
     spec : str
-        ``"arm"``, ``"humanoid"``, or a path to a character file.
+        ``"arm"``, ``"humanoid"``, or a path to a character file: ``.yaml``
+        (:mod:`skin_node.io.character_file`) or a skinned ``.glb`` / ``.gltf``
+        (:mod:`skin_node.io.gltf`; seam vertices merged, ``V`` in merged order).
     surface_vertices : int, optional
         Target surface vertex count of a built-in (its default when None or 0).
     tet_count : int, optional
@@ -107,6 +109,10 @@ def load_character(spec: str, surface_vertices: int | None = None, tet_count: in
         ``~/.cache/skin_node``), so a restart skips the set-up.
     progress : bool
         Print set-up steps to stderr when set-up takes more than 2 s.
+    weights : str
+        ``"automatic"`` (the paper's weights) or ``"file"`` (the artist's
+        weights of a glTF file); ``"automatic"`` leaves ``options.weights`` as
+        it is.
 
     Raises
     ------
@@ -115,6 +121,7 @@ def load_character(spec: str, surface_vertices: int | None = None, tet_count: in
     """
     steps = Steps(f"set-up of {spec}", enabled=progress)
     spec = str(spec)
+    file_w = None
     if not (("/" in spec) or ("." in spec)):
         from .builtin.characters import DEFAULT_SURFACE_VERTICES
         if spec not in DEFAULT_SURFACE_VERTICES:
@@ -126,15 +133,25 @@ def load_character(spec: str, surface_vertices: int | None = None, tet_count: in
         V, F, skel = _builtin_mesh(spec, n, steps, cache)
         name = spec
         default_tets = DEFAULT_TETS[spec]
+    elif Path(spec).suffix.lower() in (".glb", ".gltf"):
+        from .io.gltf import load_gltf
+        g = load_gltf(Path(spec))
+        V, F, skel, file_w = g.V, g.F, g.skeleton, (g.Widx, g.Wval)
+        name = Path(spec).stem
+        default_tets = max(6000, 2 * len(V))
     else:
         from .io.character_file import load_character_file
         V, F, skel = load_character_file(Path(spec))
         name = Path(spec).stem
         default_tets = max(6000, 2 * len(V))
     opt = options or RigOptions()
-    opt = replace(opt, tet_count=int(tet_count or (opt.tet_count if options else default_tets)))
+    opt = replace(opt, tet_count=int(tet_count or (opt.tet_count if options else default_tets)),
+                  weights=weights if weights != "automatic" else opt.weights)
+    if opt.weights == "file" and file_w is None:
+        raise ValueError(f"{spec}: weights 'file' needs a skinned glTF character "
+                         "(this one has no skin weights)")
     try:
-        rig = cached_rig(V, F, skel, opt, steps, use_cache=cache)
+        rig = cached_rig(V, F, skel, opt, steps, use_cache=cache, weights=file_w)
     except ValueError as e:
         raise ValueError(f"{spec}: {e}") from None
     steps("ready")

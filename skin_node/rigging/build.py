@@ -38,6 +38,9 @@ class RigOptions:
         The exponent of the inverse-distance weights (the paper's 4).
     neighbours_only : bool
         Restrict a point's bones to the nearest bone and its tree neighbours.
+    weights : str
+        ``"automatic"`` (the paper's inverse-distance weights) or ``"file"``
+        (the artist's weights of the character file, see :func:`file_weights`).
     """
 
     tet_count: int = 12000
@@ -45,6 +48,11 @@ class RigOptions:
     zone_weight: float = 0.05
     weight_power: float = 4.0
     neighbours_only: bool = True
+    weights: str = "automatic"
+
+
+#: Where the skin weights of a rig come from (:attr:`RigOptions.weights`).
+WEIGHT_SOURCES = ("automatic", "file")
 
 
 @dataclass
@@ -154,20 +162,93 @@ def cache_dir() -> Path:
     return Path(d)
 
 
-def rig_key(V: np.ndarray, F: np.ndarray, skel: Skeleton, opt: RigOptions) -> str:
+def rig_key(V: np.ndarray, F: np.ndarray, skel: Skeleton, opt: RigOptions,
+            weights: tuple | None = None) -> str:
+    """Cache key of a rig: its inputs, options and, for file weights, the weights."""
     h = hashlib.sha1(f"rig{RIG_VERSION}".encode())
-    for a in (V, F, skel.parents, skel.rest_positions, skel.rest_rotations, skel.tips):
+    arrays = [V, F, skel.parents, skel.rest_positions, skel.rest_rotations, skel.tips]
+    if opt.weights == "file" and weights is not None:
+        arrays += list(weights)
+    for a in arrays:
         a = np.ascontiguousarray(a)
         h.update(str(a.dtype).encode() + str(a.shape).encode())
         h.update(a.tobytes())
-    h.update(repr(sorted(vars(opt).items())).encode())
+    items = vars(opt).items()
+    if opt.weights == "automatic":  # keeps the keys of rigs cached before the option existed
+        items = [(k, v) for k, v in items if k != "weights"]
+    h.update(repr(sorted(items)).encode())
     return h.hexdigest()[:20]
 
 
+def file_weights(widx: np.ndarray, wval: np.ndarray, n_joints: int, TV: np.ndarray,
+                 V: np.ndarray, k_nearest: int = 8, influences: int = 3):
+    """Surface and tet-vertex weights from a file's per-vertex weights.
+
+    The surface keeps each vertex's ``influences`` (3, as the kernels expect)
+    largest file weights, renormalised to sum 1 (files usually carry 4; a
+    fourth influence is dropped, fewer are padded with zero weights on joint
+    0). A tet vertex takes the inverse-distance mean (power 2) of the dense
+    weights of its ``k_nearest`` surface vertices, then the same top-3 cut.
+
+    Parameters
+    ----------
+    widx, wval : (n, k) int, float
+        File weights of the ``n`` surface vertices ``V``.
+    n_joints : int
+    TV : (t, 3) float
+        Tet-mesh vertices.
+    V : (n, 3) float
+        Surface vertices.
+
+    Returns
+    -------
+    Widx, Wval, TWidx, TWval : (n, 3) and (t, 3) arrays
+    """
+    from scipy.spatial import cKDTree
+    widx = np.asarray(widx, dtype=np.int64)
+    wval = np.asarray(wval, dtype=np.float64)
+    if widx.shape != wval.shape or widx.ndim != 2 or len(widx) != len(V):
+        raise ValueError(f"file weights have shapes {widx.shape} / {wval.shape}, expected "
+                         f"({len(V)}, k) each")
+    if widx.size and (widx.min() < 0 or widx.max() >= n_joints):
+        raise ValueError(f"file weights name joints outside 0..{n_joints - 1}")
+    W = np.zeros((len(V), n_joints))
+    np.add.at(W, (np.repeat(np.arange(len(V)), widx.shape[1]), widx.ravel()), wval.ravel())
+
+    def top(Wd):
+        idx = np.argsort(-Wd, axis=1, kind="stable")[:, :influences]
+        val = np.take_along_axis(Wd, idx, axis=1)
+        if idx.shape[1] < influences:
+            pad = influences - idx.shape[1]
+            idx = np.concatenate([idx, np.zeros((len(idx), pad), np.int64)], axis=1)
+            val = np.concatenate([val, np.zeros((len(val), pad))], axis=1)
+        s = val.sum(1, keepdims=True)
+        if np.any(s <= 0):
+            raise ValueError(f"{int((s <= 0).sum())} vertices have no positive file weight")
+        return np.ascontiguousarray(idx, dtype=np.int64), np.ascontiguousarray(val / s)
+
+    Widx, Wval = top(W)
+    k = min(k_nearest, len(V))
+    d, nn = cKDTree(V).query(TV, k=k)
+    d, nn = d.reshape(len(TV), k), nn.reshape(len(TV), k)
+    w = 1.0 / np.maximum(d, 1e-9) ** 2
+    TW = np.einsum("tk,tkj->tj", w, W[nn]) / w.sum(1, keepdims=True)
+    TWidx, TWval = top(TW)
+    return Widx, Wval, TWidx, TWval
+
+
 def build_rig(V: np.ndarray, F: np.ndarray, skel: Skeleton, opt: RigOptions,
-              steps: Steps | None = None) -> Rig:
-    """Compute the :class:`Rig` of a closed surface ``V, F`` and skeleton ``skel``."""
+              steps: Steps | None = None, weights: tuple | None = None) -> Rig:
+    """Compute the :class:`Rig` of a closed surface ``V, F`` and skeleton ``skel``.
+
+    ``weights`` are the file's ``(Widx, Wval)`` (n, k) per surface vertex,
+    used when ``opt.weights == "file"`` (see :func:`file_weights`).
+    """
     steps = steps or Steps("rig", enabled=False)
+    if opt.weights not in WEIGHT_SOURCES:
+        raise ValueError(f"weights must be one of {list(WEIGHT_SOURCES)}, got {opt.weights!r}")
+    if opt.weights == "file" and weights is None:
+        raise ValueError("weights: 'file' needs a character file with skin weights (glTF)")
     n = len(V)
     volume = mesh_volume(V, F)
     if not volume > 0:
@@ -186,7 +267,9 @@ def build_rig(V: np.ndarray, F: np.ndarray, skel: Skeleton, opt: RigOptions,
     tregion = joint_regions(TV, skel, threshold)
     TWidx, TWval = inverse_distance_weights(TD, tregion, skel, opt.weight_power,
                                             opt.neighbours_only)
-    steps("regions and weights")
+    if opt.weights == "file":
+        Widx, Wval, TWidx, TWval = file_weights(weights[0], weights[1], skel.n_joints, TV, V)
+    steps(f"regions and {opt.weights} weights")
 
     vol0 = signed_volumes(TV, T)
     mass = np.zeros(len(TV))
@@ -216,9 +299,11 @@ def build_rig(V: np.ndarray, F: np.ndarray, skel: Skeleton, opt: RigOptions,
 
 
 def cached_rig(V: np.ndarray, F: np.ndarray, skel: Skeleton, opt: RigOptions,
-               steps: Steps | None = None, use_cache: bool = True) -> Rig:
-    """:func:`build_rig`, loaded from the on-disk cache when its inputs match."""
-    path = cache_dir() / f"rig-{rig_key(V, F, skel, opt)}.npz"
+               steps: Steps | None = None, use_cache: bool = True,
+               weights: tuple | None = None) -> Rig:
+    """:func:`build_rig`, loaded from the on-disk cache when its inputs match
+    (file ``weights`` are part of the key when ``opt.weights == "file"``)."""
+    path = cache_dir() / f"rig-{rig_key(V, F, skel, opt, weights)}.npz"
     if use_cache and path.exists():
         try:
             rig = Rig.load(path)
@@ -227,7 +312,7 @@ def cached_rig(V: np.ndarray, F: np.ndarray, skel: Skeleton, opt: RigOptions,
             return rig
         except Exception:  # a truncated or stale file: rebuild it
             pass
-    rig = build_rig(V, F, skel, opt, steps)
+    rig = build_rig(V, F, skel, opt, steps, weights)
     if use_cache:
         try:
             path.parent.mkdir(parents=True, exist_ok=True)

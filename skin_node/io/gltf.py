@@ -1,0 +1,737 @@
+"""Skinned glTF 2.0 characters (.glb / .gltf): surface, skeleton, weights, animation.
+
+The file is parsed with ``pygltflib`` (structure) and decoded with numpy
+(accessors). What is read, and how it becomes a project character:
+
+* **Mesh**: every triangle primitive of the skinned mesh node(s) using the
+  first skin. glTF splits vertices at UV seams and normal creases; they are
+  merged by position (within ``1e-6`` times the bounding-box diagonal) so the
+  surface is closed for tet meshing. :attr:`GltfCharacter.vertex_map` takes
+  the merged order back to the file's: ``X_file = X_merged[vertex_map]``.
+  Triangles that collapse when merging are dropped.
+* **Frame and units**: glTF is metres, y up. Points and joints are taken in
+  the glTF *world* frame (the skinned result ``G_j @ IBM_j @ v`` a viewer
+  shows, so scene-level nodes above the skeleton, such as a 0.01 scale or an
+  axis-conversion matrix, are applied), then turned to the project's z up by
+  a +90 degree rotation about x (``x, y, z -> x, -z, y``). For CesiumMan the
+  two cancel exactly: its root node already converts its z-up content to y
+  up, so the character comes out as authored (z up, arms along y).
+* **Skeleton**: the skin's joints, reordered parents first (the skin's
+  index order is kept in :attr:`GltfCharacter.joint_nodes`). A joint's parent
+  is its nearest ancestor node that is also a joint; exactly one joint may
+  have none. Nodes without a name are called ``joint<k>`` with ``k`` the skin
+  joint index (the same numbers as ``JOINTS_0``); duplicated names get a
+  ``_<k>`` suffix.
+* **Rest (bind) pose**: the vertices are bound by the inverse bind matrices
+  (IBMs), so the rest pose is ``B_j = world_of_skeleton_parent @
+  inv(IBM_j)``, rotations orthonormalised. :class:`~skin_node.skeleton.Skeleton`
+  gets these as ``rest_positions`` and ``rest_rotations`` (each joint's bind
+  rotation relative to its parent's), so ``q = 0`` is the glTF bind pose.
+  The node hierarchy's own rest transforms are compared with the IBMs
+  (:attr:`GltfCharacter.bind_mismatch`); when they disagree by more than
+  0.1 mm or 1e-3 rad the IBMs win (the vertices were bound to them) and a
+  :class:`UserWarning` says by how much. The file's animation is then still
+  exact in joint rotations, but bone offsets are the bind pose's.
+* **Tips of leaf joints**: a leaf's bone runs from the joint along its
+  direction ``d`` to the farthest of its vertices (file weight for the joint
+  at least 0.5) projected on ``d``, at least 1 cm. ``d`` points from the
+  joint to the weighted centroid of those vertices (a toe points forward
+  rather than along its parent's line into the floor). With no such
+  vertices the parent's bone is extended by half its length (or the joint's
+  local +y when it sits on its parent).
+* **Weights**: ``JOINTS_0/WEIGHTS_0`` (and ``_1`` sets, if present), as
+  (n, k) joint indices in the *skeleton's* order and renormalised values.
+  Vertices merged from several file vertices take the mean of their weights.
+* **Animation**: :func:`gltf_clip` samples an animation at a fixed rate
+  (LINEAR: lerp / slerp; STEP: hold; CUBICSPLINE: the key values, tangents
+  ignored) and converts it to the project's pose channels (root translation
+  and per-joint Euler ``R = Rz Ry Rx`` of ``W_parent^T W_j Rrest_j^T``, made
+  continuous in time). Animated translations of non-root joints and all
+  scales are ignored (the skeleton is rigid); the largest ignored offset
+  change is reported in :attr:`GltfClip.ignored_translation`.
+
+Errors are :class:`~skin_node.io.character_file.CharacterFileError`
+(a ``ValueError``) whose message starts with the file path.
+"""
+from __future__ import annotations
+
+import base64
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from urllib.parse import unquote
+
+import numpy as np
+
+from ..skeleton import Skeleton
+from .character_file import CharacterFileError, check_surface
+
+#: glTF world (y up) to the project's world (z up): +90 degrees about x.
+Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+_COMPONENTS = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16,
+               5125: np.uint32, 5126: np.float32}
+_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+_MERGE_TOL = 1e-6
+_MISMATCH_POS, _MISMATCH_ROT = 1e-4, 1e-3
+
+
+def _fail(path, msg: str):
+    raise CharacterFileError(f"{path}: {msg}")
+
+
+# ------------------------------------------------------------------ decoding
+class _Reader:
+    """Accessor decoding of one glTF document."""
+
+    def __init__(self, path: Path, gltf) -> None:
+        self.path, self.g = path, gltf
+        self._buffers: dict = {}
+
+    def buffer(self, i: int) -> bytes:
+        if i not in self._buffers:
+            if not 0 <= i < len(self.g.buffers):
+                _fail(self.path, f"buffer {i} does not exist")
+            b = self.g.buffers[i]
+            if b.uri is None:
+                data = self.g.binary_blob()
+                if data is None:
+                    _fail(self.path, f"buffer {i} has no uri and the file has no binary chunk")
+            elif b.uri.startswith("data:"):
+                data = base64.b64decode(b.uri.split(",", 1)[1])
+            else:
+                f = self.path.parent / unquote(b.uri)
+                try:
+                    data = f.read_bytes()
+                except OSError as e:
+                    _fail(self.path, f"buffer {i} file {f} cannot be read ({e})")
+            self._buffers[i] = bytes(data)
+        return self._buffers[i]
+
+    def read(self, index: int | None, what: str) -> np.ndarray:
+        """Accessor ``index`` as a float64 or int64 array of shape (count, width)."""
+        g = self.g
+        if index is None or not 0 <= index < len(g.accessors):
+            _fail(self.path, f"{what}: accessor {index} does not exist")
+        acc = g.accessors[index]
+        if acc.sparse is not None:
+            _fail(self.path, f"{what}: sparse accessors are not supported")
+        dt = _COMPONENTS.get(acc.componentType)
+        width = _WIDTH.get(acc.type)
+        if dt is None or width is None:
+            _fail(self.path, f"{what}: unknown accessor type {acc.type}/{acc.componentType}")
+        count = int(acc.count)
+        if acc.bufferView is None:
+            out = np.zeros((count, width), dtype=dt)
+        else:
+            bv = g.bufferViews[acc.bufferView]
+            data = self.buffer(bv.buffer)
+            start = (bv.byteOffset or 0) + (acc.byteOffset or 0)
+            item = np.dtype(dt).itemsize * width
+            stride = bv.byteStride or item
+            need = start + (count - 1) * stride + item if count else start
+            if need > len(data) or need > (bv.byteOffset or 0) + bv.byteLength:
+                _fail(self.path, f"{what}: accessor {index} runs past the end of its buffer")
+            raw = np.frombuffer(data, dtype=np.uint8, count=max(need - start, 0), offset=start)
+            if stride == item:
+                out = raw[:count * item].view(dt).reshape(count, width)
+            else:
+                rows = np.lib.stride_tricks.as_strided(raw, (count, item), (stride, 1))
+                out = np.ascontiguousarray(rows).view(dt).reshape(count, width)
+        if dt == np.float32:
+            return out.astype(np.float64)
+        if acc.normalized:
+            return out.astype(np.float64) / float(np.iinfo(dt).max)
+        return out.astype(np.int64)
+
+
+def _node_matrix(node) -> np.ndarray:
+    """The 4x4 local matrix of a node (``matrix`` or T @ R @ S)."""
+    if node.matrix is not None:
+        return np.asarray(node.matrix, dtype=np.float64).reshape(4, 4).T
+    M = np.eye(4)
+    M[:3, :3] = _quat_to_matrix(np.asarray(node.rotation or [0, 0, 0, 1], float)) \
+        * np.asarray(node.scale or [1, 1, 1], float)[None, :]
+    M[:3, 3] = node.translation or [0, 0, 0]
+    return M
+
+
+def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """(..., 4) quaternions (x, y, z, w), normalised here, to (..., 3, 3)."""
+    q = np.asarray(q, dtype=np.float64)
+    q = q / np.maximum(np.linalg.norm(q, axis=-1, keepdims=True), 1e-300)
+    x, y, z, w = np.moveaxis(q, -1, 0)
+    R = np.empty(q.shape[:-1] + (3, 3))
+    R[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    R[..., 0, 1] = 2 * (x * y - z * w)
+    R[..., 0, 2] = 2 * (x * z + y * w)
+    R[..., 1, 0] = 2 * (x * y + z * w)
+    R[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    R[..., 1, 2] = 2 * (y * z - x * w)
+    R[..., 2, 0] = 2 * (x * z - y * w)
+    R[..., 2, 1] = 2 * (y * z + x * w)
+    R[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return R
+
+
+def _orthonormal(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest rotations of (..., 3, 3) ``A`` and their singular values (scales)."""
+    U, s, Vt = np.linalg.svd(A)
+    R = U @ Vt
+    flip = np.linalg.det(R) < 0
+    if np.any(flip):
+        U = U.copy()
+        U[flip, :, -1] *= -1
+        R = U @ Vt
+    return R, s
+
+
+def _rotation_angle(R: np.ndarray) -> np.ndarray:
+    c = (np.trace(R, axis1=-2, axis2=-1) - 1.0) * 0.5
+    return np.arccos(np.clip(c, -1.0, 1.0))
+
+
+# --------------------------------------------------------------- the result
+@dataclass
+class GltfClip:
+    """An animation of the file as project pose channels.
+
+    Attributes
+    ----------
+    name : str
+    channel_names : list of str
+    frames : (T, C) float
+        Root translation (metres) then rx, ry, rz per joint (radians).
+    fps : float
+    ignored_translation : float
+        Largest change of a non-root joint's offset that the rigid skeleton
+        cannot follow, metres (0 for CesiumMan's walk up to float noise).
+    """
+
+    name: str
+    channel_names: list
+    frames: np.ndarray
+    fps: float
+    ignored_translation: float = 0.0
+
+
+@dataclass
+class GltfCharacter:
+    """A skinned glTF character, merged and converted to the project's conventions.
+
+    Attributes
+    ----------
+    path : Path
+    V : (n, 3) float
+        Merged rest surface, metres, z up.
+    F : (m, 3) int
+        Triangles over ``V`` (closed, outward facing).
+    skeleton : Skeleton
+        ``q = 0`` is the bind pose.
+    Widx, Wval : (n, k) int, float
+        The file's weights per merged vertex, skeleton joint indices, rows
+        summing to 1, sorted by decreasing weight.
+    vertex_map : (n_file,) int
+        Merged index of every file vertex (all skinned primitives, in order).
+    file_faces : (m_file, 3) int
+        The file's triangles over its own vertices.
+    joint_nodes : (J,) int
+        glTF node of every skeleton joint.
+    skin_joint : (J,) int
+        Index of every skeleton joint in the skin's ``joints`` list.
+    bind_mismatch : tuple of float
+        (metres, radians): largest difference between the node hierarchy's
+        rest pose and the IBMs' bind pose.
+    """
+
+    path: Path
+    V: np.ndarray
+    F: np.ndarray
+    skeleton: Skeleton
+    Widx: np.ndarray
+    Wval: np.ndarray
+    vertex_map: np.ndarray
+    file_faces: np.ndarray
+    joint_nodes: np.ndarray
+    skin_joint: np.ndarray
+    bind_mismatch: tuple = (0.0, 0.0)
+    _gltf: object = field(default=None, repr=False)
+    _to_world: np.ndarray = field(default=None, repr=False)
+
+    @property
+    def n_file_vertices(self) -> int:
+        return len(self.vertex_map)
+
+    def to_file_order(self, X: np.ndarray) -> np.ndarray:
+        """(..., n, 3) merged-order points to (..., n_file, 3) in the file's vertex order."""
+        return np.asarray(X)[..., self.vertex_map, :]
+
+    def dense_weights(self) -> np.ndarray:
+        """(n, J) file weights as a dense matrix."""
+        W = np.zeros((len(self.V), self.skeleton.n_joints))
+        np.add.at(W, (np.repeat(np.arange(len(self.V)), self.Widx.shape[1]), self.Widx.ravel()),
+                  self.Wval.ravel())
+        return W
+
+    @property
+    def animation_names(self) -> list:
+        return [a.name or f"animation{i}" for i, a in enumerate(self._gltf.animations or [])]
+
+    def clip(self, which: int | str = 0, fps: float = 30.0) -> GltfClip:
+        """:func:`gltf_clip` of this character."""
+        return gltf_clip(self, which, fps)
+
+
+# ------------------------------------------------------------------ loading
+def _read_document(path: Path):
+    import pygltflib
+    if not path.exists():
+        _fail(path, "no such file")
+    if path.stat().st_size == 0:
+        _fail(path, "file is empty")
+    if path.suffix.lower() not in (".glb", ".gltf"):
+        _fail(path, "expected a .glb or .gltf file")
+    head = path.read_bytes()[:4]
+    try:
+        if head == b"glTF":
+            g = pygltflib.GLTF2().load_binary(str(path))
+        else:
+            g = pygltflib.GLTF2().load_json(str(path))
+    except Exception as e:  # pygltflib raises many kinds for bad input
+        _fail(path, f"not a readable glTF 2.0 file ({e.__class__.__name__}: {e})")
+    if g is None:
+        _fail(path, "not a readable glTF 2.0 file")
+    version = str(getattr(g.asset, "version", "") or "")
+    if not version.startswith("2"):
+        _fail(path, f"glTF version {version or '?'} is not supported (expected 2.0)")
+    return g
+
+
+def _parents_of_nodes(path: Path, g) -> np.ndarray:
+    """(N,) parent node of every node (-1 for none); errors for bad children and cycles."""
+    N = len(g.nodes)
+    parent = np.full(N, -1, dtype=np.int64)
+    for i, n in enumerate(g.nodes):
+        for c in n.children or []:
+            if not isinstance(c, int) or not 0 <= c < N:
+                _fail(path, f"node {i} lists child {c}, which is not a node of the file "
+                            f"(0..{N - 1}): unknown parent link")
+            if c == i:
+                _fail(path, f"node {i} is its own child (a cycle in the node hierarchy)")
+            if parent[c] >= 0:
+                _fail(path, f"node {c} has two parents ({parent[c]} and {i}); glTF nodes form "
+                            "a tree")
+            parent[c] = i
+    for i in range(N):  # walking up must end; a cycle without a root never does
+        seen, a = set(), i
+        while a >= 0:
+            if a in seen:
+                _fail(path, f"the node hierarchy has a cycle through node {i}")
+            seen.add(a)
+            a = parent[a]
+    return parent
+
+
+def _world_matrices(g, parent: np.ndarray, local: np.ndarray | None = None) -> np.ndarray:
+    """(N, 4, 4) world matrices from (N, 4, 4) local ones (rest TRS when None)."""
+    N = len(g.nodes)
+    if local is None:
+        local = np.stack([_node_matrix(n) for n in g.nodes]) if N else np.zeros((0, 4, 4))
+    W = np.full_like(local, np.nan)
+    done = np.zeros(N, dtype=bool)
+
+    def world(i):
+        chain = []
+        while i >= 0 and not done[i]:
+            chain.append(i)
+            i = parent[i]
+        for k in reversed(chain):
+            p = parent[k]
+            W[k] = local[k] if p < 0 else W[p] @ local[k]
+            done[k] = True
+
+    for i in range(N):
+        world(i)
+    return W
+
+
+def _merge_by_position(V: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """(representative (n_file,) merged index, merged points) for points within ``tol``."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+    pairs = cKDTree(V).query_pairs(tol, output_type="ndarray")
+    n = len(V)
+    G = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, label = connected_components(G, directed=False)
+    # Number the merged points in order of first appearance in the file.
+    first = np.full(label.max() + 1, n, dtype=np.int64)
+    np.minimum.at(first, label, np.arange(n))
+    order = np.argsort(first)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    vmap = rank[label]
+    Vm = np.zeros((len(order), 3))
+    np.add.at(Vm, vmap, V)
+    Vm /= np.bincount(vmap)[:, None]
+    return vmap, Vm
+
+
+def load_gltf(path: str | Path) -> GltfCharacter:
+    """Read a skinned glTF 2.0 character.
+
+    Parameters
+    ----------
+    path : str or Path
+        A ``.glb`` or ``.gltf`` file with one skinned, triangle mesh.
+
+    Returns
+    -------
+    GltfCharacter
+
+    Raises
+    ------
+    CharacterFileError
+        ``"<path>: <problem>"`` for a missing, empty or unreadable file, no
+        skinned mesh, a broken node hierarchy (cycles, unknown children),
+        a skin whose joints are not one tree, missing or bad weights, NaN
+        coordinates, or a surface that is open, non-manifold or inside out
+        even after merging seam vertices.
+    """
+    path = Path(path)
+    g = _read_document(path)
+    rd = _Reader(path, g)
+    if not g.nodes:
+        _fail(path, "has no nodes (no mesh and no skeleton)")
+    parent = _parents_of_nodes(path, g)
+    if not g.skins:
+        _fail(path, "has no skin: a skinned mesh with JOINTS_0/WEIGHTS_0 is needed")
+    mesh_nodes = [i for i, n in enumerate(g.nodes) if n.mesh is not None and n.skin == 0]
+    if not mesh_nodes:
+        _fail(path, "no node uses skin 0 with a mesh")
+    skin = g.skins[0]
+    skin_nodes = [int(j) for j in (skin.joints or [])]
+    Jf = len(skin_nodes)
+    if Jf == 0:
+        _fail(path, "skin 0 has no joints")
+    bad = [j for j in skin_nodes if not 0 <= j < len(g.nodes)]
+    if bad:
+        _fail(path, f"skin 0 lists joints {bad} that are not nodes of the file")
+    if len(set(skin_nodes)) != Jf:
+        _fail(path, "skin 0 lists a joint node twice")
+
+    # ---- skeleton: joint parents through non-joint nodes, parents first
+    in_skin = {n: k for k, n in enumerate(skin_nodes)}
+    jparent = np.full(Jf, -1, dtype=np.int64)
+    for k, n in enumerate(skin_nodes):
+        a = parent[n]
+        while a >= 0 and a not in in_skin:
+            a = parent[a]
+        jparent[k] = in_skin.get(a, -1) if a >= 0 else -1
+    roots = np.flatnonzero(jparent < 0)
+    if len(roots) != 1:
+        _fail(path, f"skin 0's joints form {len(roots)} trees (roots: nodes "
+                    f"{[skin_nodes[r] for r in roots]}); the skeleton needs exactly one root")
+    order = [int(roots[0])]
+    for k in order:  # breadth first: parents before children
+        order.extend(int(c) for c in np.flatnonzero(jparent == k))
+    order = np.asarray(order, dtype=np.int64)
+    new_of_skin = np.empty(Jf, dtype=np.int64)
+    new_of_skin[order] = np.arange(Jf)
+    parents = np.array([-1 if jparent[k] < 0 else new_of_skin[jparent[k]] for k in order])
+    names, used = [], set()
+    for k in order:
+        nm = g.nodes[skin_nodes[k]].name or f"joint{k}"
+        if nm in used:
+            nm = f"{nm}_{k}"
+        used.add(nm)
+        names.append(nm)
+
+    # ---- frames: glTF world, then z up
+    Wn = _world_matrices(g, parent)
+    Cz = np.eye(4)
+    Cz[:3, :3] = Y_UP_TO_Z_UP
+    if skin.inverseBindMatrices is not None:
+        IBM = rd.read(skin.inverseBindMatrices, "inverseBindMatrices")
+        if IBM.shape != (Jf, 16):
+            _fail(path, f"inverseBindMatrices has {len(IBM)} matrices for {Jf} joints")
+        IBM = IBM.reshape(Jf, 4, 4).transpose(0, 2, 1)
+    else:
+        IBM = np.tile(np.eye(4), (Jf, 1, 1))
+    if not np.all(np.isfinite(IBM)):
+        _fail(path, "inverseBindMatrices contain NaN or Inf")
+    root_node = skin_nodes[order[0]]
+    above = Wn[parent[root_node]] if parent[root_node] >= 0 else np.eye(4)
+    to_world = Cz @ above                    # skin (mesh) space -> project world
+    try:
+        Bw = to_world @ np.linalg.inv(IBM)   # bind world matrices, skin order
+    except np.linalg.LinAlgError:
+        _fail(path, "an inverse bind matrix is singular")
+    Rb, sb = _orthonormal(Bw[:, :3, :3])
+    scale0 = float(np.cbrt(abs(np.linalg.det(to_world[:3, :3]))))
+    if np.any(np.abs(sb / scale0 - 1.0) > 1e-2):
+        _fail(path, "joints have non-uniform or non-unit scale in the bind pose "
+                    f"(singular values {sb.min():.4g}..{sb.max():.4g}); rigid skeletons only")
+    Rb, Pb = Rb[order], Bw[order, :3, 3]
+    Rn = Cz @ Wn[np.asarray(skin_nodes)[order]]
+    Rn_rot, _ = _orthonormal(Rn[:, :3, :3])
+    mis_p = float(np.abs(Rn[:, :3, 3] - Pb).max())
+    mis_r = float(_rotation_angle(np.swapaxes(Rn_rot, 1, 2) @ Rb).max())
+    if mis_p > _MISMATCH_POS * max(scale0, 1e-9) or mis_r > _MISMATCH_ROT:
+        warnings.warn(f"{path}: the node hierarchy's rest pose differs from the inverse bind "
+                      f"matrices by up to {mis_p * 1000:.2f} mm / {np.degrees(mis_r):.2f} deg; "
+                      "using the inverse bind matrices (the vertices are bound to them)",
+                      UserWarning, stacklevel=2)
+    rest_rot = np.empty_like(Rb)
+    for j in range(Jf):
+        p = parents[j]
+        rest_rot[j] = Rb[j] if p < 0 else Rb[p].T @ Rb[j]
+
+    # ---- mesh
+    Vf, Ff, Jidx, Jw = [], [], [], []
+    nv = 0
+    for mi in mesh_nodes:
+        mesh = g.meshes[g.nodes[mi].mesh] if 0 <= g.nodes[mi].mesh < len(g.meshes) else None
+        if mesh is None:
+            _fail(path, f"node {mi} refers to mesh {g.nodes[mi].mesh}, which does not exist")
+        for pk, prim in enumerate(mesh.primitives):
+            if prim.mode not in (None, 4):
+                _fail(path, f"mesh {g.nodes[mi].mesh} primitive {pk} has mode {prim.mode}; "
+                            "only triangles (mode 4) are supported")
+            at = prim.attributes
+            where = f"mesh {g.nodes[mi].mesh} primitive {pk}"
+            if at.POSITION is None:
+                _fail(path, f"{where} has no POSITION")
+            P = rd.read(at.POSITION, f"{where} POSITION")
+            if P.shape[1] != 3:
+                _fail(path, f"{where} POSITION is not VEC3")
+            idx = rd.read(prim.indices, f"{where} indices").ravel() if prim.indices is not None \
+                else np.arange(len(P))
+            if len(idx) % 3:
+                _fail(path, f"{where}: {len(idx)} indices is not a multiple of 3")
+            if len(idx) and (idx.min() < 0 or idx.max() >= len(P)):
+                _fail(path, f"{where}: indices reach vertex {idx.max()} of {len(P)}")
+            sets = []
+            for s in range(4):
+                ja, wa = getattr(at, f"JOINTS_{s}", None), getattr(at, f"WEIGHTS_{s}", None)
+                if ja is None and wa is None:
+                    continue
+                if ja is None or wa is None:
+                    _fail(path, f"{where} has JOINTS_{s} without WEIGHTS_{s} or the reverse")
+                sets.append((rd.read(ja, f"{where} JOINTS_{s}"),
+                             rd.read(wa, f"{where} WEIGHTS_{s}").astype(np.float64)))
+            if not sets:
+                _fail(path, f"{where} has no JOINTS_0/WEIGHTS_0: the mesh is not skinned")
+            ji = np.concatenate([a for a, _ in sets], axis=1)
+            wv = np.concatenate([b for _, b in sets], axis=1)
+            if ji.shape != wv.shape or len(ji) != len(P):
+                _fail(path, f"{where}: JOINTS/WEIGHTS do not match POSITION in size")
+            Vf.append(P)
+            Ff.append(idx.reshape(-1, 3) + nv)
+            Jidx.append(ji)
+            Jw.append(wv)
+            nv += len(P)
+    Vfile = np.concatenate(Vf)
+    Ffile = np.concatenate(Ff).astype(np.int64)
+    ji, wv = np.concatenate(Jidx), np.concatenate(Jw)
+    if len(Vfile) == 0 or len(Ffile) == 0:
+        _fail(path, "the skinned mesh has no triangles")
+    if not np.all(np.isfinite(Vfile)):
+        _fail(path, f"{int((~np.isfinite(Vfile)).any(1).sum())} vertices have NaN or Inf "
+                    "coordinates")
+    if not np.all(np.isfinite(wv)) or np.any(wv < -1e-6):
+        _fail(path, "WEIGHTS contain NaN, Inf or negative values")
+    if np.any((ji < 0) | (ji >= Jf)) and np.any(wv[(ji < 0) | (ji >= Jf)] > 0):
+        _fail(path, f"JOINTS refer to joints outside the skin's 0..{Jf - 1}")
+    ji = np.clip(ji, 0, Jf - 1)
+    wsum = wv.sum(1)
+    if np.any(wsum <= 1e-9):
+        _fail(path, f"{int((wsum <= 1e-9).sum())} vertices have all-zero weights")
+    Vw = Vfile @ to_world[:3, :3].T + to_world[:3, 3]
+    diag = float(np.linalg.norm(Vw.max(0) - Vw.min(0)))
+    vmap, V = _merge_by_position(Vw, _MERGE_TOL * max(diag, 1e-12))
+    F = vmap[Ffile]
+    F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 2] != F[:, 0])]
+    check_surface(path, V, F)
+
+    # ---- weights per merged vertex (mean over merged file vertices), skeleton order
+    W = np.zeros((len(V), Jf))
+    np.add.at(W, (np.repeat(vmap, ji.shape[1]), new_of_skin[ji].ravel()),
+              (wv / wsum[:, None]).ravel())
+    W /= W.sum(1, keepdims=True)
+    k = min(ji.shape[1], Jf)
+    Widx = np.argsort(-W, axis=1, kind="stable")[:, :k]
+    Wval = np.take_along_axis(W, Widx, axis=1)
+
+    tips = _leaf_tips(Pb, Rb, parents, V, W)
+    try:
+        skel = Skeleton(names, parents, Pb, rest_rotations=rest_rot, tips=tips)
+    except ValueError as e:
+        _fail(path, f"skeleton: {e}")
+    return GltfCharacter(path=path, V=V, F=F, skeleton=skel, Widx=Widx.astype(np.int64),
+                         Wval=Wval, vertex_map=vmap, file_faces=Ffile,
+                         joint_nodes=np.asarray(skin_nodes)[order], skin_joint=order,
+                         bind_mismatch=(mis_p, mis_r), _gltf=g, _to_world=to_world)
+
+
+def _leaf_tips(P: np.ndarray, R: np.ndarray, parents: np.ndarray, V: np.ndarray,
+               W: np.ndarray) -> np.ndarray:
+    """(J, 3) tip of every leaf joint (NaN for the others); see the module docstring."""
+    J = len(P)
+    tips = np.full((J, 3), np.nan)
+    has_child = np.zeros(J, dtype=bool)
+    has_child[parents[parents >= 0]] = True
+    for j in np.flatnonzero(~has_child):
+        p = parents[j]
+        d = P[j] - P[p] if p >= 0 else np.zeros(3)
+        parent_len = float(np.linalg.norm(d))
+        d = d / parent_len if parent_len > 1e-6 else R[j][:, 1]
+        mine = W[:, j] >= 0.5
+        if mine.any():
+            # The joint's direction: towards the weighted centroid of its own skin
+            # (a toe points forward, not down its parent's line into the floor).
+            c = (W[mine, j, None] * V[mine]).sum(0) / W[mine, j].sum() - P[j]
+            if np.linalg.norm(c) > 1e-3:
+                d = c / np.linalg.norm(c)
+            reach = float(((V[mine] - P[j]) @ d).max())
+            tips[j] = P[j] + d * max(reach, 0.01)
+        else:
+            tips[j] = P[j] + d * max(0.5 * parent_len, 0.01)
+    return tips
+
+
+def load_gltf_character(path: str | Path):
+    """``(V, F, skeleton)`` of a skinned glTF file, as :func:`load_character_file` returns."""
+    c = load_gltf(path)
+    return c.V, c.F, c.skeleton
+
+
+# ---------------------------------------------------------------- animation
+def _sample(times: np.ndarray, values: np.ndarray, t: np.ndarray, interp: str,
+            rotation: bool) -> np.ndarray:
+    """Values of one animation sampler at times ``t``."""
+    if interp == "CUBICSPLINE":        # (in-tangent, value, out-tangent) per key
+        values = values.reshape(len(times), 3, -1)[:, 1]
+    i = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 1)
+    i1 = np.minimum(i + 1, len(times) - 1)
+    dt = np.maximum(times[i1] - times[i], 1e-12)
+    u = np.clip((t - times[i]) / dt, 0.0, 1.0)[:, None]
+    if interp == "STEP":
+        u = np.zeros_like(u)
+    a, b = values[i], values[i1]
+    if not rotation:
+        return a + u * (b - a)
+    a = a / np.linalg.norm(a, axis=1, keepdims=True)
+    b = b / np.linalg.norm(b, axis=1, keepdims=True)
+    dot = (a * b).sum(1, keepdims=True)
+    b = np.where(dot < 0, -b, b)
+    dot = np.abs(dot)
+    th = np.arccos(np.clip(dot, -1.0, 1.0))
+    s = np.sin(th)
+    small = s < 1e-6
+    wa = np.where(small, 1.0 - u, np.sin((1.0 - u) * th) / np.where(small, 1.0, s))
+    wb = np.where(small, u, np.sin(u * th) / np.where(small, 1.0, s))
+    q = wa * a + wb * b
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def gltf_clip(char: GltfCharacter, which: int | str = 0, fps: float = 30.0) -> GltfClip:
+    """Sample one of the file's animations as a clip of the character's pose channels.
+
+    Parameters
+    ----------
+    char : GltfCharacter
+    which : int or str
+        Animation index or name.
+    fps : float
+        Sampling rate; frames run from the first to the last key inclusive.
+
+    Returns
+    -------
+    GltfClip
+    """
+    from ..retarget import continuous_euler
+    from ..skeleton import matrix_to_euler_xyz
+    g, path = char._gltf, char.path
+    anims = g.animations or []
+    names = char.animation_names
+    if isinstance(which, str) and not which.isdigit():
+        if which not in names:
+            _fail(path, f"no animation named '{which}' (animations: {names})")
+        which = names.index(which)
+    which = int(which)
+    if not 0 <= which < len(anims):
+        _fail(path, f"animation {which} does not exist (the file has {len(anims)})")
+    anim = anims[which]
+    rd = _Reader(path, g)
+    N = len(g.nodes)
+    T_rest = np.array([n.translation or [0, 0, 0] for n in g.nodes], dtype=float)
+    Q_rest = np.array([n.rotation or [0, 0, 0, 1] for n in g.nodes], dtype=float)
+    S_rest = np.array([n.scale or [1, 1, 1] for n in g.nodes], dtype=float)
+    tracks = []
+    t_end = 0.0
+    for ch in anim.channels:
+        if ch.target.node is None or ch.target.path not in ("translation", "rotation", "scale"):
+            continue                    # morph weights and extension targets do not move joints
+        smp = anim.samplers[ch.sampler]
+        times = rd.read(smp.input, "animation input").ravel()
+        vals = rd.read(smp.output, "animation output")
+        if len(times) == 0:
+            continue
+        if g.nodes[ch.target.node].matrix is not None:
+            _fail(path, f"node {ch.target.node} is animated but has a matrix (glTF forbids it)")
+        tracks.append((ch.target.node, ch.target.path, times, vals, smp.interpolation or "LINEAR"))
+        t_end = max(t_end, float(times.max()))
+    n_frames = int(np.floor(t_end * fps + 1e-6)) + 1
+    t = np.arange(n_frames) / fps
+    Tt = np.broadcast_to(T_rest, (n_frames, N, 3)).copy()
+    Qt = np.broadcast_to(Q_rest, (n_frames, N, 4)).copy()
+    St = np.broadcast_to(S_rest, (n_frames, N, 3)).copy()
+    for node, kind, times, vals, interp in tracks:
+        v = _sample(times, vals, t, interp, kind == "rotation")
+        {"translation": Tt, "rotation": Qt, "scale": St}[kind][:, node] = v
+    local = np.zeros((n_frames, N, 4, 4))
+    local[..., :3, :3] = _quat_to_matrix(Qt) * St[..., None, :]
+    local[..., :3, 3] = Tt
+    local[..., 3, 3] = 1.0
+    for i, n in enumerate(g.nodes):
+        if n.matrix is not None:
+            local[:, i] = _node_matrix(n)
+    parent = _parents_of_nodes(path, g)
+    Cz = np.eye(4)
+    Cz[:3, :3] = Y_UP_TO_Z_UP
+    Wt = np.empty_like(local)
+    for i in _topological(parent):
+        p = parent[i]
+        Wt[:, i] = local[:, i] if p < 0 else Wt[:, p] @ local[:, i]
+    Gj = Cz @ Wt[:, char.joint_nodes]                       # (T, J, 4, 4), project world
+    Rj, _ = _orthonormal(Gj[..., :3, :3])
+    skel = char.skeleton
+    J = skel.n_joints
+    q = np.zeros((n_frames, skel.n_channels))
+    ignored = 0.0
+    for j in range(J):
+        p = skel.parents[j]
+        Rp = np.eye(3) if p < 0 else Rj[:, p]
+        Rq = np.swapaxes(Rp, -1, -2) @ Rj[:, j] @ skel.rest_rotations[j].T
+        q[:, 3 + 3 * j: 6 + 3 * j] = matrix_to_euler_xyz(Rq)
+        if p >= 0:
+            off = np.einsum("tji,tj->ti", Rp, Gj[:, j, :3, 3] - Gj[:, p, :3, 3])
+            ignored = max(ignored, float(np.abs(off - skel.offsets[j]).max()))
+    q[:, 3:] = continuous_euler(q[:, 3:].reshape(n_frames, J, 3), 0).reshape(n_frames, 3 * J)
+    q[:, :3] = Gj[:, 0, :3, 3] - skel.rest_positions[0]
+    return GltfClip(name=names[which], channel_names=skel.channel_names, frames=q,
+                    fps=float(fps), ignored_translation=ignored)
+
+
+def _topological(parent: np.ndarray) -> list:
+    order, seen = [], np.zeros(len(parent), dtype=bool)
+    for i in range(len(parent)):
+        chain = []
+        while i >= 0 and not seen[i]:
+            chain.append(i)
+            i = parent[i]
+        for k in reversed(chain):
+            seen[k] = True
+            order.append(k)
+    return order
