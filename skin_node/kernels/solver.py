@@ -195,10 +195,10 @@ def lbs(V, Widx, Wval, M, out):
             wt = Wval[i, a]
             if wt == 0.0:
                 continue
-            Mj = M[Widx[i, a]]
-            ox += wt * (Mj[0, 0] * x + Mj[0, 1] * y + Mj[0, 2] * z + Mj[0, 3])
-            oy += wt * (Mj[1, 0] * x + Mj[1, 1] * y + Mj[1, 2] * z + Mj[1, 3])
-            oz += wt * (Mj[2, 0] * x + Mj[2, 1] * y + Mj[2, 2] * z + Mj[2, 3])
+            j = Widx[i, a]          # index M directly: a row view costs a refcount
+            ox += wt * (M[j, 0, 0] * x + M[j, 0, 1] * y + M[j, 0, 2] * z + M[j, 0, 3])
+            oy += wt * (M[j, 1, 0] * x + M[j, 1, 1] * y + M[j, 1, 2] * z + M[j, 1, 3])
+            oz += wt * (M[j, 2, 0] * x + M[j, 2, 1] * y + M[j, 2, 2] * z + M[j, 2, 3])
         out[i, 0], out[i, 1], out[i, 2] = ox, oy, oz
 
 
@@ -212,27 +212,28 @@ def dqs(V, Widx, Wval, Q, out):
     """
     n, K = Widx.shape
     for i in nb.prange(n):
-        q0 = Q[Widx[i, 0]]
+        j0 = Widx[i, 0]
         b0 = b1 = b2 = b3 = b4 = b5 = b6 = b7 = 0.0
         for a in range(K):
             wt = Wval[i, a]
             if wt == 0.0:
                 continue
-            q = Q[Widx[i, a]]
-            if q[0] * q0[0] + q[1] * q0[1] + q[2] * q0[2] + q[3] * q0[3] < 0.0:
+            j = Widx[i, a]
+            dot = Q[j, 0] * Q[j0, 0] + Q[j, 1] * Q[j0, 1] + Q[j, 2] * Q[j0, 2] \
+                + Q[j, 3] * Q[j0, 3]
+            if dot < 0.0:
                 wt = -wt
-            b0 += wt * q[0]
-            b1 += wt * q[1]
-            b2 += wt * q[2]
-            b3 += wt * q[3]
-            b4 += wt * q[4]
-            b5 += wt * q[5]
-            b6 += wt * q[6]
-            b7 += wt * q[7]
-        b = (b0, b1, b2, b3, b4, b5, b6, b7)
-        nr = np.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2] + b[3] * b[3])
-        w0, x0, y0, z0 = b[0] / nr, b[1] / nr, b[2] / nr, b[3] / nr
-        we, xe, ye, ze = b[4] / nr, b[5] / nr, b[6] / nr, b[7] / nr
+            b0 += wt * Q[j, 0]
+            b1 += wt * Q[j, 1]
+            b2 += wt * Q[j, 2]
+            b3 += wt * Q[j, 3]
+            b4 += wt * Q[j, 4]
+            b5 += wt * Q[j, 5]
+            b6 += wt * Q[j, 6]
+            b7 += wt * Q[j, 7]
+        inv = 1.0 / np.sqrt(b0 * b0 + b1 * b1 + b2 * b2 + b3 * b3)
+        w0, x0, y0, z0 = b0 * inv, b1 * inv, b2 * inv, b3 * inv
+        we, xe, ye, ze = b4 * inv, b5 * inv, b6 * inv, b7 * inv
         # rotation of v by the real part
         vx, vy, vz = V[i, 0], V[i, 1], V[i, 2]
         tx = 2.0 * (y0 * vz - z0 * vy)

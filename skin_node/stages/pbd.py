@@ -48,6 +48,7 @@ class PBD(Stage):
         # Warm start: last frame's correction in the frame of each vertex's main bone.
         self._dom = r.TWidx[np.arange(len(r.TV)), np.argmax(r.TWval, axis=1)]
         self._corr = np.zeros((len(r.TV), 3))
+        self._dX = None
         self._contact_setup(character)
 
     def _contact_setup(self, character) -> None:
@@ -196,8 +197,7 @@ class PBD(Stage):
         prev = X.copy() if tol > 0 else None
         verts = sets[BIND][0]
         if p["warm_start"]:
-            R = fr.M[self._dom[verts], :3, :3]
-            X[verts] += np.einsum("vij,vj->vi", R, self._corr[verts])
+            _carry(X, verts, fr.M, self._dom, self._corr, True)
         both = VOLUME in kinds and ENERGY in kinds
         for it in range(1, int(p["iterations"]) + 1):
             for kind in kinds:
@@ -228,14 +228,31 @@ class PBD(Stage):
         fr.counts["active_tets"] = len(sets[VOLUME][0])
         fr.counts["iterations"] = it
         if p["warm_start"]:
-            R = fr.M[self._dom[verts], :3, :3]
-            self._corr[verts] = np.einsum("vji,vj->vi", R, X[verts] - fr.tet_base[verts])
+            self._dX = X - fr.tet_base if self._dX is None else \
+                np.subtract(X, fr.tet_base, out=self._dX)
+            _carry(self._dX, verts, fr.M, self._dom, self._corr, False)
         f = fr.fade
         if p["active_regions"] and np.any((f > 0) & (f < 1)):
             # Joints still in their fade band pass on only part of the correction.
             zf = (self.rig.zone[verts][:, fr.bent] * f[fr.bent]).max(axis=1)
             X[verts] = fr.tet_base[verts] + zf[:, None] * (X[verts] - fr.tet_base[verts])
         solver.embed_update(fr.surface_base, X, fr.tet_base, r.Etet, r.Ebary, fr.surface)
+
+
+@nb.njit(cache=True)
+def _carry(X, verts, M, dom, corr, apply):
+    """Warm start. ``apply``: ``X_i += R_i corr_i``; else ``corr_i = R_i^T X_i``
+    (``X`` then holding the correction), with ``R_i`` the rotation of vertex i's
+    main bone, so a correction rides with its limb from frame to frame."""
+    for a in range(verts.shape[0]):
+        i = verts[a]
+        R = M[dom[i]]
+        if apply:
+            for r in range(3):
+                X[i, r] += R[r, 0] * corr[i, 0] + R[r, 1] * corr[i, 1] + R[r, 2] * corr[i, 2]
+        else:
+            for c in range(3):
+                corr[i, c] = R[0, c] * X[i, 0] + R[1, c] * X[i, 1] + R[2, c] * X[i, 2]
 
 
 @nb.njit(cache=True)
