@@ -611,7 +611,7 @@ def _extremity(vol, leaf, tip, base):
         return vol.nearest(tip)
     along = rel[near] @ d
     side = np.linalg.norm(rel[near] - np.outer(along, d), axis=1)
-    return int(near[np.argmax(along - 0.5 * side)])
+    return int(near[np.argmax(along - side)])
 
 
 def _limb_root(depth):
@@ -629,7 +629,9 @@ def _pull_back(vol, P, path):
     the end cap's centre, not at the skin."""
     s = _arc(P)
     rem = s[-1] - s
-    d = vol.d[path]
+    # The local radius, but at most a fifth of the path: a bulge (a belly) is
+    # deep yet its bone must still reach into it.
+    d = np.minimum(vol.d[path], 0.2 * s[-1])
     ok = np.flatnonzero(rem >= d)
     k = ok[-1] if len(ok) else 0
     return P[:max(k, 1) + 1]
@@ -673,3 +675,86 @@ def _keep_inside(vol, V, F, pos, tips):
     pts[fin] = P
     J = len(pos)
     return pts[:J], pts[J:]
+
+
+# ------------------------------------------------------------------ characters
+def read_closed_mesh(path: str | Path):
+    """A mesh file (any format trimesh reads) merged by position and checked closed.
+
+    Returns
+    -------
+    V : (n, 3) float, F : (m, 3) int
+
+    Raises
+    ------
+    ValueError
+        ``"<path>: <problem>"`` for a missing, unreadable, open or inward mesh.
+    """
+    from ..io.character_file import check_surface
+    path = Path(path)
+    if not path.exists():
+        raise ValueError(f"{path}: no such mesh file")
+    import trimesh
+    try:
+        m = trimesh.load(path, force="mesh", process=False)
+    except Exception as e:  # trimesh raises many kinds for bad files
+        raise ValueError(f"{path}: cannot be read as a mesh ({e})") from None
+    V, F = np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
+    if len(V) == 0 or len(F) == 0:
+        raise ValueError(f"{path}: the mesh has no triangles")
+    # Exporters split vertices at UV seams: merge by position for a closed surface.
+    V, inv = np.unique(np.round(V, 9), axis=0, return_inverse=True)
+    F = inv.reshape(-1)[F]
+    F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 2] != F[:, 0])]
+    check_surface(path, V, F)
+    return V, F
+
+
+def load_embedded(mesh_path: str | Path, template: str | Path = "humanoid", up=None,
+                  forward=None, tet_count: int | None = None, options=None,
+                  cache: bool = True, progress: bool = False):
+    """A :class:`~skin_node.character.Character` from a bare closed mesh: the
+    template skeleton is embedded automatically, then rigged as any character.
+
+    Parameters
+    ----------
+    mesh_path : str or Path
+        A closed mesh file (OBJ, PLY, STL, OFF, glTF/GLB: its first mesh in its
+        scene pose), metres.
+    template : str or Path
+        ``"humanoid"``, ``"quadruped"`` or a template YAML file.
+    up, forward : optional
+        See :func:`embed_skeleton`.
+    tet_count : int, optional
+        Target tet count (default ``max(6000, 2 * vertices)``, as for character files).
+    options : RigOptions, optional
+    cache : bool
+        Use the on-disk rig cache.
+    progress : bool
+        Print set-up steps to stderr when set-up is slow.
+
+    Raises
+    ------
+    ValueError
+        ``"<path>: <problem>"`` for a bad mesh or template.
+    """
+    from dataclasses import replace
+
+    from ..character import Character
+    from .build import RigOptions, Steps, cached_rig
+    steps = Steps(f"set-up of {mesh_path}", enabled=progress)
+    V, F = read_closed_mesh(mesh_path)
+    try:
+        skel = embed_skeleton(V, F, template, up=up, forward=forward)
+    except ValueError as e:
+        raise ValueError(f"{mesh_path}: {e}") from None
+    steps(f"skeleton embedded ({skel.n_joints} joints)")
+    opt = options or RigOptions()
+    opt = replace(opt, tet_count=int(tet_count or (opt.tet_count if options
+                                                   else max(6000, 2 * len(V)))))
+    try:
+        rig = cached_rig(V, F, skel, opt, steps, use_cache=cache)
+    except ValueError as e:
+        raise ValueError(f"{mesh_path}: {e}") from None
+    steps("ready")
+    return Character(name=Path(mesh_path).stem, V=V, F=F, skeleton=skel, rig=rig, options=opt)
