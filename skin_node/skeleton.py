@@ -147,6 +147,17 @@ class Skeleton:
     def children(self, j: int) -> list:
         return list(self._children[j])
 
+    def subtree(self) -> np.ndarray:
+        """(J, J) bool: ``[a, b]`` is True when joint ``b`` is ``a`` or below it."""
+        J = self.n_joints
+        below = np.zeros((J, J), dtype=bool)
+        for b in range(J):
+            a = b
+            while a >= 0:
+                below[a, b] = True
+                a = self.parents[a]
+        return below
+
     def index(self, name: str) -> int:
         try:
             return self.names.index(name)

@@ -17,6 +17,13 @@ from .constraints import (bind_constraint, contact_constraint, energy_constraint
 
 
 @nb.njit(cache=True, inline="always")
+def _apply(X, t, dp):
+    for b in range(4):
+        for d in range(3):
+            X[t[b], d] += dp[b, d]
+
+
+@nb.njit(cache=True, inline="always")
 def _stretch_range(X, w, E, rest, lam, idx, lo, hi, k, alpha, dp):
     for a in range(lo, hi):
         c = idx[a]
@@ -35,9 +42,7 @@ def _volume_range(X, w, T, rest, lam, idx, lo, hi, k, alpha, dp):
         t = T[c]
         dlam = volume_constraint(X, t, w, rest[c], k, alpha, lam[c], dp)
         lam[c] += dlam
-        for b in range(4):
-            for d in range(3):
-                X[t[b], d] += dp[b, d]
+        _apply(X, t, dp)
 
 
 @nb.njit(cache=True, inline="always")
@@ -47,9 +52,7 @@ def _energy_range(X, w, m, T, ks, rest, lam, idx, lo, hi, k, alpha, dp):
         t = T[c]
         dlam = energy_constraint(X, t, w, m, ks, rest[c], k, alpha, lam[c], dp)
         lam[c] += dlam
-        for b in range(4):
-            for d in range(3):
-                X[t[b], d] += dp[b, d]
+        _apply(X, t, dp)
 
 
 @nb.njit(cache=True, inline="always")
@@ -61,14 +64,10 @@ def _tet_range(X, w, m, T, ks, vrest, erest, vlam, elam, idx, lo, hi, kv, av, ke
         t = T[c]
         dlam = volume_constraint(X, t, w, vrest[c], kv, av, vlam[c], dp)
         vlam[c] += dlam
-        for b in range(4):
-            for d in range(3):
-                X[t[b], d] += dp[b, d]
+        _apply(X, t, dp)
         dlam = energy_constraint(X, t, w, m, ks, erest[c], ke, ae, elam[c], dp)
         elam[c] += dlam
-        for b in range(4):
-            for d in range(3):
-                X[t[b], d] += dp[b, d]
+        _apply(X, t, dp)
 
 
 @nb.njit(cache=True, parallel=True)

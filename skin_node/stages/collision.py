@@ -22,12 +22,7 @@ class JointRegions:
         skel, r, F = character.skeleton, character.rig, character.F
         self.skel = skel
         J = skel.n_joints
-        below = np.zeros((J, J), dtype=bool)          # below[j, b]: b is j or a descendant of j
-        for b in range(J):
-            a = b
-            while a >= 0:
-                below[a, b] = True
-                a = skel.parents[a]
+        below = skel.subtree()          # below[j, b]: b is j or under j
         dom = r.Widx[np.arange(len(r.Widx)), np.argmax(r.Wval, axis=1)]
         P = skel.rest_positions
         self.child = np.array([skel.children(j)[0] if skel.children(j) else -1 for j in range(J)])

@@ -58,12 +58,7 @@ class PBD(Stage):
         from .collision import JointRegions
         skel, r = character.skeleton, self.rig
         J = skel.n_joints
-        below = np.zeros((J, J), dtype=bool)
-        for b in range(J):
-            a = b
-            while a >= 0:
-                below[a, b] = True
-                a = skel.parents[a]
+        below = skel.subtree()          # below[j, b]: b is j or under j
         dom = r.TWidx[np.arange(len(r.TV)), np.argmax(r.TWval, axis=1)]
         self._regions = JointRegions(character)
         self.cverts, self.cside = [], []

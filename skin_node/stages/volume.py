@@ -79,12 +79,7 @@ class Volume(Stage):
         super().__init__(character, params)
         skel, r = character.skeleton, character.rig
         J = skel.n_joints
-        below = np.zeros((J, J), dtype=bool)
-        for b in range(J):
-            a = b
-            while a >= 0:
-                below[a, b] = True
-                a = skel.parents[a]
+        below = skel.subtree()          # below[j, b]: b is j or under j
         # mobility[:, j]: 4 s (1 - s) with s the weight a vertex takes from below j.
         self.mobility = np.zeros((len(character.V), J))
         self.zone, self.side = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
