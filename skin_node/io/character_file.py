@@ -13,6 +13,10 @@ the skeleton's joints, parents first, in metres::
 
 Every leaf joint needs a ``tip`` (where its bone ends). Optional per joint:
 ``limits: [[min, max], [min, max], [min, max]]`` in radians for rx, ry, rz.
+Instead of ``joints``, ``template: humanoid`` (or ``quadruped``, or a template
+YAML path) embeds that template skeleton in the mesh automatically
+(:mod:`skin_node.rigging.embed`); optional ``up:`` / ``forward:`` (``y``,
+``-z``, ...) say how the mesh is oriented when detection would get it wrong.
 Errors name the file and say what is wrong with it.
 """
 from __future__ import annotations
@@ -68,7 +72,7 @@ def load_character_file(path: Path):
     V, F = _mesh(path, doc)
     V = V * scale
     check_surface(path, V, F)
-    return V, F, _skeleton(path, doc, scale)
+    return V, F, _skeleton(path, doc, scale, V, F)
 
 
 def _mesh(path: Path, doc: dict):
@@ -126,7 +130,15 @@ def check_surface(path, V: np.ndarray, F: np.ndarray) -> None:
                     "to face outwards")
 
 
-def _skeleton(path: Path, doc: dict, scale: float) -> Skeleton:
+def _skeleton(path: Path, doc: dict, scale: float, V=None, F=None) -> Skeleton:
+    if "template" in doc and "joints" not in doc and V is not None:
+        # No hand-placed joints: embed a template skeleton in the (scaled) mesh.
+        from ..rigging.embed import embed_skeleton
+        try:
+            return embed_skeleton(V, F, str(doc["template"]), up=doc.get("up"),
+                                  forward=doc.get("forward"))
+        except ValueError as e:
+            _fail(path, f"template '{doc['template']}': {e}")
     joints = doc.get("joints")
     if not isinstance(joints, list) or not joints:
         _fail(path, "needs a non-empty 'joints' list")

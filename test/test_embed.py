@@ -1,0 +1,165 @@
+"""Automatic skeleton embedding: templates placed inside bare closed meshes, then
+rigged and deformed with no hand work."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from skin_node.builtin.characters import make_humanoid
+from skin_node.builtin.quadruped import quadruped_walk
+from skin_node.rigging.embed import (embed_skeleton, load_embedded, load_template,
+                                     read_closed_mesh, surface_distance, winding_numbers)
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+SPOT = DATA / "meshes" / "spot_triangulated.obj"
+CESIUM = DATA / "rigged" / "CesiumMan.glb"
+
+
+def _need(path: Path) -> Path:
+    if not path.exists():
+        pytest.skip(f"test data {path} is not available")
+    return path
+
+
+def _all_points(skel):
+    tips = skel.tips[np.isfinite(skel.tips).all(1)]
+    return np.vstack([skel.rest_positions, tips])
+
+
+def assert_inside(skel, V, F):
+    P = _all_points(skel)
+    w = winding_numbers(P, V, F)
+    assert np.all(w > 0.99), dict(zip(skel.names, np.round(w, 3)))
+    assert surface_distance(P, V, F).min() > 1e-3
+
+
+@pytest.fixture(scope="module")
+def humanoid_mesh():
+    return make_humanoid(4000)
+
+
+@pytest.fixture(scope="module")
+def spot():
+    V, F = read_closed_mesh(_need(SPOT))
+    return V, F, embed_skeleton(V, F, "quadruped")
+
+
+def test_templates_load():
+    h = load_template("humanoid")
+    assert h.names == make_humanoid(2000)[2].names        # its clips apply
+    q = load_template("quadruped")
+    for t in (h, q):
+        assert np.all((t.positions >= 0) & (t.positions <= 1))
+    with pytest.raises(ValueError, match="no_such_template"):
+        load_template("no_such_template")
+
+
+def test_bad_template_file_names_the_file(tmp_path):
+    p = tmp_path / "broken.yaml"
+    p.write_text("joints:\n  - {name: a, position: [0.5, 0.5, 0.5]}\n")   # a leaf without tip
+    with pytest.raises(ValueError, match="broken.yaml.*tip"):
+        load_template(p)
+
+
+def test_humanoid_embeds_near_the_builtin_joints(humanoid_mesh):
+    V, F, ref = humanoid_mesh
+    skel = embed_skeleton(V, F, "humanoid")
+    np.testing.assert_allclose(skel.rest_rotations[0], np.eye(3), atol=1e-9)   # z up, x forward
+    assert_inside(skel, V, F)
+    err = np.linalg.norm(skel.rest_positions - ref.rest_positions, axis=1)
+    assert err.max() < 0.08, dict(zip(skel.names, np.round(err, 3)))
+    assert np.median(err) < 0.03
+
+
+def test_humanoid_orientation_is_detected(humanoid_mesh):
+    """The same body lying y-up and facing -z embeds to the same joints, rotated."""
+    V, F, ref = humanoid_mesh
+    R = np.column_stack([[0, 0, -1], [-1, 0, 0], [0, 1, 0]]).astype(float)  # x->-z, y->-x, z->y
+    skel = embed_skeleton(V @ R.T, F, "humanoid")
+    np.testing.assert_allclose(skel.rest_rotations[0], R, atol=1e-9)
+    err = np.linalg.norm(skel.rest_positions - ref.rest_positions @ R.T, axis=1)
+    assert err.max() < 0.08, dict(zip(skel.names, np.round(err, 3)))
+
+
+def test_cesium_man_bind_pose(tmp_path):
+    V, F = read_closed_mesh(_need(CESIUM))
+    skel = embed_skeleton(V, F, "humanoid")
+    assert_inside(skel, V, F)
+    up, left = skel.rest_rotations[0][:, 2], skel.rest_rotations[0][:, 1]
+    np.testing.assert_allclose(up, [0, 1, 0], atol=1e-9)           # glTF is y up
+    P = {n: p for n, p in zip(skel.names, skel.rest_positions)}
+    for s in ("l", "r"):
+        assert P[f"{s}_hip"] @ up > P[f"{s}_knee"] @ up > P[f"{s}_ankle"] @ up
+    assert P["head"] @ up > P["neck"] @ up > P["chest"] @ up > P["pelvis"] @ up
+    assert (P["l_wrist"] - P["r_wrist"]) @ left > 0.5               # hands apart, left on the left
+
+
+def test_spot_joints_inside_symmetric_and_legs_in_legs(spot):
+    V, F, skel = spot
+    assert_inside(skel, V, F)
+    A = skel.rest_rotations[0]
+    np.testing.assert_allclose(A[:, 2], [0, 1, 0], atol=1e-9)      # Spot is y up ...
+    np.testing.assert_allclose(A[:, 0], [0, 0, -1], atol=1e-9)     # ... and faces -z
+    Q = V @ A                                                      # forward, left, up
+    P = skel.rest_positions @ A
+    idx = {n: i for i, n in enumerate(skel.names)}
+    # Left/right pairs mirror each other about the mesh's symmetry plane.
+    c = 0.5 * (Q[:, 1].min() + Q[:, 1].max())
+    for n, i in idx.items():
+        if n.startswith("l_"):
+            k = idx["r_" + n[2:]]
+            mirrored = P[k] * [1, -1, 1] + [0, 2 * c, 0]
+            assert np.linalg.norm(P[i] - mirrored) < 0.01 * np.ptp(Q, 0).max(), n
+    # Belly height: the lowest skin on the midline half way between the legs.
+    hooves = ["l_wrist", "r_wrist", "l_ankle", "r_ankle"]
+    T = skel.tips @ A
+    front, hind = T[idx["l_wrist"], 0], T[idx["l_ankle"], 0]
+    mid = (np.abs(Q[:, 1] - c) < 0.05) & (np.abs(Q[:, 0] - 0.5 * (front + hind))
+                                          < 0.25 * abs(front - hind))
+    belly = Q[mid, 2].min()
+    for n in hooves:
+        t = T[idx[n]]
+        assert t[2] < belly, (n, t, belly)
+        nearest = Q[np.argmin(((Q - t) ** 2).sum(1))]
+        assert nearest[2] < belly, (n, nearest, belly)
+        # each leg joint is on its own side and end of the body
+        side = np.sign(t[1] - c)
+        assert side == (1 if n.startswith("l_") else -1)
+    assert front > hind
+
+
+def test_spot_walks_without_crossings():
+    from skin_node.pipeline import Pipeline
+    from skin_node.stages.collision import JointRegions, count_crossings
+    ch = load_embedded(_need(SPOT), "quadruped", tet_count=6000, progress=False)
+    frames = quadruped_walk(ch.skeleton)
+    assert frames.shape == (240, ch.n_channels)
+    regions = JointRegions(ch)
+    pipe = Pipeline(ch)
+    checked = []
+    for t in range(120):
+        X = pipe.deform(frames[t])
+        assert np.all(np.isfinite(X)), t
+        if t % 10 == 0:
+            checked.append(count_crossings(X, ch.V, ch.F, pipe.last_frame.M, regions))
+    assert checked == [0] * len(checked), checked
+    # the walk really moves the legs
+    G = ch.skeleton.world_matrices(frames[30])
+    moved = np.linalg.norm(G[ch.skeleton.index("l_ankle"), :3, 3]
+                           - G[0, :3, 3] - (ch.skeleton.rest_positions[ch.skeleton.index("l_ankle")]
+                                            - ch.skeleton.rest_positions[0]))
+    assert moved > 0.02
+
+
+def test_character_file_with_template(tmp_path):
+    from skin_node.character import load_character
+    spot = _need(SPOT)
+    p = tmp_path / "cow.yaml"
+    p.write_text(f"mesh: {spot}\ntemplate: quadruped\nup: y\nforward: -z\n")
+    ch = load_character(str(p), tet_count=6000, progress=False)
+    assert "l_ankle" in ch.skeleton.names
+    assert_inside(ch.skeleton, ch.V, ch.F)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(f"mesh: {spot}\ntemplate: no_such_template\n")
+    with pytest.raises(ValueError, match="bad.yaml.*no_such_template"):
+        load_character(str(bad), tet_count=6000, progress=False)
