@@ -16,7 +16,8 @@ setup(
     ],
     # rclpy and the message packages come from the ROS installation (or its wheels).
     install_requires=["setuptools", "numpy", "numba", "trimesh", "scipy", "pyyaml",
-                      "scikit-image", "rosbags", "psutil", "matplotlib", "pygltflib"],
+                      "scikit-image", "rosbags", "psutil", "matplotlib", "pygltflib",
+                      "usd-core"],
     zip_safe=True,
     maintainer="skin_node maintainers",
     maintainer_email="maintainers@skin-node.invalid",

@@ -6,7 +6,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 DEPS=(
-  numpy numba scipy trimesh pyyaml scikit-image psutil matplotlib pygltflib
+  numpy numba scipy trimesh pyyaml scikit-image psutil matplotlib pygltflib usd-core
   ros-jazzy-rclpy ros-jazzy-common-interfaces ros-jazzy-rmw-fastrtps-cpp
   rosbags colcon-common-extensions pytest
 )
