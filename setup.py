@@ -13,6 +13,7 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml"))),
+        (f"share/{PACKAGE}/config/templates", sorted(glob("config/templates/*.yaml"))),
     ],
     # rclpy and the message packages come from the ROS installation (or its wheels).
     install_requires=["setuptools", "numpy", "numba", "trimesh", "scipy", "pyyaml",

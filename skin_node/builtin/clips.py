@@ -126,7 +126,15 @@ def squat(skel: Skeleton, seconds: float = 4.0, knee_degrees: float = 150.0) -> 
     return frames
 
 
-CLIPS = {"elbow_bend": elbow_bend, "wrist_twist": wrist_twist, "walk": walk, "squat": squat}
+def quadruped_walk(skel: Skeleton) -> np.ndarray:
+    """A four-beat walk for skeletons of the ``quadruped`` template (see
+    :mod:`skin_node.builtin.quadruped`)."""
+    from .quadruped import quadruped_walk as walk4      # that module builds on this one
+    return walk4(skel)
+
+
+CLIPS = {"elbow_bend": elbow_bend, "wrist_twist": wrist_twist, "walk": walk, "squat": squat,
+         "quadruped_walk": quadruped_walk}
 CLIP_NAMES = tuple(CLIPS)
 DEFAULT_CLIPS = {"arm": "elbow_bend", "humanoid": "walk"}
 
