@@ -56,7 +56,9 @@ def load_motion(character: str, clip: str = "", bvh: str = "",
         from skin_node.io.bvh import load_bvh
         from skin_node.retarget import load_mapping, retarget_bvh
         source = load_bvh(bvh)
-        spec = load_mapping(mapping or config_path(f"cmu_to_{character}.yaml"), skeleton, source)
+        # A character file picks its map by name: .../CesiumMan.glb -> cmu_to_cesiumman.yaml
+        default = config_path(f"cmu_to_{Path(character).stem.lower()}.yaml")
+        spec = load_mapping(mapping or default, skeleton, source)
         names, frames, fps = retarget_bvh(source, skeleton, spec)
         return Path(bvh).stem, list(names), np.asarray(frames), float(fps)
     from skin_node import default_clip_name, make_clip
@@ -110,7 +112,7 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     ap.add_argument("--clip", default="", help="built-in clip (default: the character's)")
     ap.add_argument("--bvh", default="", help="BVH file to retarget and play instead")
     ap.add_argument("--mapping", default="",
-                    help="retarget mapping YAML (default: config/cmu_to_<character>.yaml)")
+                    help="retarget mapping YAML (default: config/cmu_to_<character name>.yaml)")
     ap.add_argument("--name-map", dest="name_map", default="",
                     help="publish under the incoming names of this name map")
     ap.add_argument("--rate", type=float, default=1.0, help="speed factor")

@@ -1,0 +1,168 @@
+"""CesiumMan.glb with real CMU mocap: the shipped mapping, automatic against
+file weights, and the issue's acceptance measures on the walk and punch clips.
+
+Frames are subsampled (every 12th walk frame, the most-bent punch frames) to
+keep the file fast; ``skin_bench`` style full runs are for the report.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pygltflib")
+
+from skin_node import Pipeline, load_character  # noqa: E402
+from skin_node.io.bvh import load_bvh  # noqa: E402
+from skin_node.metrics import region_volume  # noqa: E402
+from skin_node.retarget import axis_conversion, load_mapping, retarget_bvh  # noqa: E402
+from skin_node.stages.collision import JointRegions, count_crossings  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data"
+CESIUMMAN = DATA / "rigged" / "CesiumMan.glb"
+CLIPS = {"walk": "cmu_02_01_walk.bvh", "punch": "cmu_02_05_punch_strike.bvh"}
+LIMBS = ["joint3", "joint5", "joint7", "joint6", "joint8", "joint11", "joint13", "joint12",
+         "joint14", "joint15", "joint16"]
+
+
+def need(p: Path) -> Path:
+    if not p.exists():
+        pytest.skip(f"test data {p} is absent")
+    return p
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    import os
+    old = os.environ.get("SKIN_NODE_CACHE")
+    os.environ["SKIN_NODE_CACHE"] = old or str(tmp_path_factory.mktemp("cache"))
+    yield
+    if old is None:
+        os.environ.pop("SKIN_NODE_CACHE", None)
+
+
+@pytest.fixture(scope="module")
+def characters(cache):
+    p = str(need(CESIUMMAN))
+    return {w: load_character(p, weights=w, progress=False) for w in ("automatic", "file")}
+
+
+@pytest.fixture(scope="module")
+def motions(characters):
+    skel = characters["file"].skeleton
+    out = {}
+    for name, f in CLIPS.items():
+        src = load_bvh(need(DATA / "bvh" / f))
+        mapping = load_mapping(ROOT / "config" / "cmu_to_cesiumman.yaml", skel, src)
+        _, q, fps = retarget_bvh(src, skel, mapping)
+        out[name] = (src, mapping, q)
+    return out
+
+
+@pytest.mark.parametrize("clip", list(CLIPS))
+def test_mapping_puts_limbs_along_the_mocap_bones(clip, characters, motions):
+    """With the rest offsets, every mapped limb bone points where its CMU bone
+    points (axis-converted), in the reference T-pose and through the clip."""
+    skel = characters["file"].skeleton
+    src, mapping, q = motions[clip]
+    C = axis_conversion(mapping)
+    Gs = src.world_matrices()
+    j_of = mapping["joints"]
+    errs = []
+    for t in list(range(0, len(q), max(1, len(q) // 40))):
+        G = skel.world_matrices(q[t])
+        for name in LIMBS:
+            j = skel.index(name)
+            k = next(c for c in skel.children(j) if skel.names[c] in j_of)
+            dt = G[k, :3, 3] - G[j, :3, 3]
+            ds = C @ (Gs[t, src.index(j_of[skel.names[k]]), :3, 3] - Gs[t, src.index(j_of[name]), :3, 3])
+            cos = dt @ ds / np.linalg.norm(dt) / np.linalg.norm(ds)
+            errs.append(np.degrees(np.arccos(np.clip(cos, -1, 1))))
+            if t == 0:                 # the neck has no offset: within 3 degrees
+                assert errs[-1] < 3.0, (name, errs[-1])
+    assert np.mean(errs) < 2.0 and np.max(errs) < 10.0, (np.mean(errs), np.max(errs))
+    if clip == "walk":   # walks forward (+x) about 2.3 m, metres not inches
+        assert 1.5 < q[-1, 0] - q[0, 0] < 3.5 and abs(q[-1, 1] - q[0, 1]) < 0.3
+
+
+def test_player_picks_the_cesiumman_map(characters):
+    pytest.importorskip("rclpy")
+    from skin_node.player import load_motion
+    name, names, frames, fps = load_motion(str(CESIUMMAN), bvh=str(DATA / "bvh" / CLIPS["walk"]))
+    assert name == "cmu_02_01_walk" and fps == 120.0
+    assert names == characters["file"].channel_names and frames.shape == (344, 60)
+
+
+def test_automatic_against_file_weights(characters):
+    """The paper's weights against the artist's on CesiumMan: they differ
+    (mean over vertices of half the L1 distance, 0..1) but deform the file's
+    own walk within millimetres on average."""
+    a, f = characters["automatic"], characters["file"]
+    J = a.skeleton.n_joints
+
+    def dense(ch):
+        W = np.zeros((len(ch.V), J))
+        np.add.at(W, (np.repeat(np.arange(len(ch.V)), 3), ch.rig.Widx.ravel()), ch.rig.Wval.ravel())
+        return W
+
+    tv = 0.5 * np.abs(dense(a) - dense(f)).sum(1)
+    assert 0.05 < tv.mean() < 0.4, tv.mean()
+    from skin_node.io.gltf import load_gltf
+    walk = load_gltf(CESIUMMAN).clip(fps=10.0).frames
+    pa, pf = Pipeline.preset(a, "lbs"), Pipeline.preset(f, "lbs")
+    d = np.concatenate([np.linalg.norm(pa.deform(q) - pf.deform(q), axis=1) for q in walk])
+    assert d.mean() < 0.01 and d.max() < 0.2, (d.mean(), d.max())
+
+
+def frames_of(clip: str, q: np.ndarray, ch) -> np.ndarray:
+    if clip == "walk":
+        return np.arange(1, len(q), 12)
+    bend = np.array([ch.skeleton.joint_angles(x)[1:].max() for x in q[1::4]])
+    return 1 + 4 * np.sort(np.argsort(bend)[-24:])          # the most-bent punch frames
+
+
+def run(ch, clip, q):
+    regions = JointRegions(ch)
+    skel = ch.skeleton
+    rj = [j for j in range(skel.n_joints) if skel.parents[j] >= 0 and len(regions.tris[j])]
+    rest = {j: region_volume(ch.V, ch.F, regions.tris[j], skel.rest_positions[j]) for j in rj}
+    lbs, ours = Pipeline.preset(ch, "lbs"), Pipeline(ch)
+    out = {"nan": False, "lbs": 0, "ours": 0, "ratio": []}
+    for t in frames_of(clip, q, ch):
+        Vl, Vo = lbs.deform(q[t]), ours.deform(q[t])
+        fr = ours.last_frame
+        out["nan"] |= not np.all(np.isfinite(Vo))
+        out["lbs"] += count_crossings(Vl, ch.V, ch.F, lbs.last_frame.M, regions)
+        out["ours"] += count_crossings(Vo, ch.V, ch.F, fr.M, regions)
+        j = max(rj, key=lambda j: fr.angles[j])                 # the most-bent joint
+        out["ratio"].append(region_volume(Vo, ch.F, regions.tris[j], fr.G[j, :3, 3]) / rest[j])
+    return out
+
+
+@pytest.fixture(scope="module")
+def acceptance(characters, motions):
+    return {(w, c): run(characters[w], c, motions[c][2]) for w in characters for c in CLIPS}
+
+
+@pytest.mark.parametrize("weights,clip", [
+    pytest.param("automatic", "walk", marks=pytest.mark.xfail(strict=True, reason=(
+        "measured on every 4th frame: 18 crossings against LBS's 0 (punch: 8 against 5), "
+        "at the chest and ankles; with the file's weights 0 against LBS's 50 and 146"))),
+    ("automatic", "punch"), ("file", "walk"), ("file", "punch")])
+def test_no_nan_and_no_more_crossings_than_lbs(acceptance, weights, clip):
+    r = acceptance[(weights, clip)]
+    assert not r["nan"]
+    assert r["ours"] <= r["lbs"], r
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "measured on every 4th frame, most-bent joint's region volume / rest: automatic weights "
+    "walk 0.85-1.01 (LBS 0.84-0.94), punch 0.60-1.01 (LBS 0.51-0.92); file weights walk "
+    "0.51-0.80 (LBS 0.71-0.87), punch 0.42-1.03 (LBS 0.43-0.86): not yet within 3%"))
+@pytest.mark.parametrize("weights", ["automatic", "file"])
+@pytest.mark.parametrize("clip", list(CLIPS))
+def test_joint_region_volume_within_3_percent(acceptance, weights, clip):
+    ratio = np.array(acceptance[(weights, clip)]["ratio"])
+    assert np.all(np.abs(ratio - 1.0) <= 0.03), (ratio.min(), ratio.max())
