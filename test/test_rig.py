@@ -352,3 +352,17 @@ def test_pipeline_rejects_bad_pose(arm):
     q[4] = np.nan
     with pytest.raises(ValueError, match="NaN or Inf"):
         p.deform(q)
+
+
+def test_weights_with_fewer_than_three_bones():
+    """A two-joint skeleton (a bent tube like RiggedSimple) still gets valid weights."""
+    from skin_node.rigging.weights import bone_distances, inverse_distance_weights, joint_regions
+    skel = Skeleton(["a", "b"], np.array([-1, 0]), np.array([[0, 0, 0], [1.0, 0, 0]]),
+                    tips=np.array([[np.nan] * 3, [2.0, 0, 0]]))
+    P = np.array([[0.5, 0.1, 0], [1.0, 0.1, 0], [1.5, 0.1, 0]])
+    D, _ = bone_distances(P, skel)
+    region = joint_regions(P, skel, np.array([0.0, 0.3]))
+    Widx, Wval = inverse_distance_weights(D, region, skel)
+    assert Widx.shape == (3, 3) and np.allclose(Wval.sum(1), 1.0)
+    assert Widx.max() <= 1 and np.all(Wval >= 0)
+    assert abs(Wval[1, 0] - 0.5) < 1e-9          # on the joint: half and half

@@ -45,7 +45,7 @@ class RigOptions:
 
     tet_count: int = 12000
     region_scale: float = 1.6
-    zone_weight: float = 0.05
+    zone_weight: float = 0.1
     weight_power: float = 4.0
     neighbours_only: bool = True
     weights: str = "automatic"
@@ -134,12 +134,7 @@ def weight_zones(Widx: np.ndarray, Wval: np.ndarray, skel: Skeleton, eps: float)
     """(n, J) bool: points whose weights straddle joint ``j`` (more than ``eps``
     from bones in ``j``'s subtree and more than ``eps`` from the rest)."""
     J = skel.n_joints
-    below = np.zeros((J, J), dtype=bool)          # below[j, b]: bone b is in j's subtree
-    for b in range(J):
-        a = b
-        while a >= 0:
-            below[a, b] = True
-            a = skel.parents[a]
+    below = skel.subtree()          # below[j, b]: bone b is in j's subtree
     zone = np.zeros((len(Widx), J), dtype=bool)
     for j in range(1, J):
         wb = (Wval * below[j][Widx]).sum(1)

@@ -89,6 +89,8 @@ def inverse_distance_weights(D: np.ndarray, region: np.ndarray, skel: Skeleton,
             adj[j, skel.parents[j]] = adj[skel.parents[j], j] = True
         nearest = np.argmin(D, axis=1)
         Dm[~adj[nearest]] = np.inf
+    if J < 3:                          # pad so there are always 3 candidate columns
+        Dm = np.hstack([Dm, np.full((n, 3 - J), np.inf)])
     order = np.argsort(Dm, axis=1, kind="stable")[:, :3]
     d = np.take_along_axis(Dm, order, axis=1)
     k = np.where(region >= 0, 3, 2)
