@@ -7,6 +7,7 @@ import os
 import time
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from .stages.base import Frame, Stage
@@ -110,7 +111,8 @@ PIPELINE_PARAMS = {
                                   "stage 1 is left as it is"),
     "active_fade": ParamSpec(float, 0.2, 1e-3, 3.2, "corrections fade in over this much rotation "
                              "past the threshold (rad), so nothing pops"),
-    "threads": ParamSpec(int, 1, 1, 64, "threads of the colour-parallel solve (1 = sequential)"),
+    "threads": ParamSpec(int, 1, 1, 64, "threads of the numba kernels and of the colour-parallel "
+                         "solve; 1 measured fastest on two cores shared with DDS"),
     "self_collision": ParamSpec(bool, True, description="run the collision stage"),
     "collision_angle": ParamSpec(float, 1.0, 0.0, 3.2, "joints bent less than this (rad) cannot "
                                  "fold skin onto skin and are not checked"),
@@ -193,9 +195,6 @@ class Pipeline:
                 raise ValueError(f"unknown parameter '{k}'; parameters are {list(PIPELINE_PARAMS)}")
             checked[k] = PIPELINE_PARAMS[k].check(k, v)
         self.params.update(checked)
-        if "threads" in checked:
-            import numba
-            numba.set_num_threads(min(checked["threads"], numba.config.NUMBA_NUM_THREADS))
         for s in getattr(self, "stages", []):
             s.reset()
 
@@ -231,6 +230,8 @@ class Pipeline:
             Surface vertices in the order of ``character.V`` (a new array).
         """
         t0 = time.perf_counter()
+        # numba's thread count is per calling thread (the node deforms in a worker)
+        numba.set_num_threads(min(int(self.params["threads"]), numba.config.NUMBA_NUM_THREADS))
         fr = self.frame(q)
         t = {"fk": (time.perf_counter() - t0) * 1e3}
         for name, stage in zip(self.stage_names, self.stages):
