@@ -14,7 +14,20 @@ PYTHON=${PYTHON:-python3}
 
 if [ ! -x .venv/bin/python ]; then
   echo "setup: creating .venv with $($PYTHON --version)"
-  "$PYTHON" -m venv .venv
+  if ! "$PYTHON" -m venv .venv 2>/dev/null; then
+    # Debian and Ubuntu ship venv apart from python3: install it when we may.
+    rm -rf .venv
+    pyver=$("$PYTHON" -c 'import sys; print(f"{sys.version_info[0]}.{sys.version_info[1]}")')
+    if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
+      apt-get update -qq && apt-get install -y -qq "python${pyver}-venv" python3-venv >/dev/null
+    elif command -v apt-get >/dev/null && command -v sudo >/dev/null; then
+      sudo apt-get update -qq && sudo apt-get install -y -qq "python${pyver}-venv" python3-venv >/dev/null
+    else
+      echo "setup: '$PYTHON -m venv' failed; install your distribution's python venv package" >&2
+      exit 1
+    fi
+    "$PYTHON" -m venv .venv
+  fi
 fi
 stamp=.venv/.skin_node_deps
 if [ "$(cat "$stamp" 2>/dev/null)" != "${DEPS[*]}" ]; then
