@@ -137,16 +137,22 @@ def bind_constraint(X, i, w, ax, ay, az, bx, by, bz, rest, k, alpha, lam, dp):
     return dlam
 
 
-@nb.njit(cache=True)
-def energy_value(X, t, m, ks, rest):
-    """The energy constraint's value ``C = 1/2 sum_i k_i (|p_i - p0| - d_i)^2``."""
+@nb.njit(cache=True, inline="always")
+def _centroid(X, t, m):
+    """Mass-weighted centroid of a tet and its total mass."""
     M = m[t[0]] + m[t[1]] + m[t[2]] + m[t[3]]
     cx = cy = cz = 0.0
     for a in range(4):
         cx += m[t[a]] * X[t[a], 0]
         cy += m[t[a]] * X[t[a], 1]
         cz += m[t[a]] * X[t[a], 2]
-    cx, cy, cz = cx / M, cy / M, cz / M
+    return cx / M, cy / M, cz / M, M
+
+
+@nb.njit(cache=True)
+def energy_value(X, t, m, ks, rest):
+    """The energy constraint's value ``C = 1/2 sum_i k_i (|p_i - p0| - d_i)^2``."""
+    cx, cy, cz, M = _centroid(X, t, m)
     C = 0.0
     for a in range(4):
         dx, dy, dz = X[t[a], 0] - cx, X[t[a], 1] - cy, X[t[a], 2] - cz
@@ -169,13 +175,7 @@ def energy_constraint(X, t, w, m, ks, rest, k, alpha, lam, dp):
     centre of mass. ``C >= 0`` has a double root, so one projection halves it.
     ``m`` are the masses, ``ks`` the four spring constants, ``rest`` the ``d_i``.
     """
-    M = m[t[0]] + m[t[1]] + m[t[2]] + m[t[3]]
-    cx = cy = cz = 0.0
-    for a in range(4):
-        cx += m[t[a]] * X[t[a], 0]
-        cy += m[t[a]] * X[t[a], 1]
-        cz += m[t[a]] * X[t[a], 2]
-    cx, cy, cz = cx / M, cy / M, cz / M
+    cx, cy, cz, M = _centroid(X, t, m)
     C = 0.0
     sx = sy = sz = 0.0
     for a in range(4):
