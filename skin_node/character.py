@@ -65,10 +65,12 @@ def _builtin_mesh(name: str, surface_vertices: int, steps: Steps, use_cache: boo
         try:
             with np.load(path) as z:
                 V, F = z["V"], z["F"]
-            skel = _builtin_skeleton(make, surface_vertices)
+                skel = Skeleton([str(n) for n in z["names"]], z["parents"], z["rest_positions"],
+                                rest_rotations=z["rest_rotations"], tips=z["tips"],
+                                limits=z["limits"])
             steps(f"{name} mesh from cache")
             return V, F, skel
-        except Exception:
+        except Exception:  # an older or truncated file: make it again
             pass
     V, F, skel = make(surface_vertices=surface_vertices)
     steps(f"{name} mesh: {len(V)} vertices, {len(F)} triangles")
@@ -76,16 +78,13 @@ def _builtin_mesh(name: str, surface_vertices: int, steps: Steps, use_cache: boo
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             tmp = path.with_suffix(".tmp.npz")
-            np.savez(tmp, V=V, F=F)
+            np.savez(tmp, V=V, F=F, names=np.array(skel.names), parents=skel.parents,
+                     rest_positions=skel.rest_positions, rest_rotations=skel.rest_rotations,
+                     tips=skel.tips, limits=skel.limits)
             tmp.replace(path)
         except OSError:
             pass
     return V, F, skel
-
-
-def _builtin_skeleton(make, surface_vertices: int) -> Skeleton:
-    # The skeleton does not depend on the density; generating the coarsest mesh is cheap.
-    return make(surface_vertices=2000)[2]
 
 
 def load_character(spec: str, surface_vertices: int | None = None, tet_count: int | None = None,
