@@ -90,6 +90,7 @@ class Volume(Stage):
             self.zone.append(z)
             self.side.append((s[z] > 0.5).astype(np.int64))
         self.F = character.F
+        self._region = r.region
         self.V0 = mesh_volume(character.V, character.F)
         self.regions = JointRegions(character)
         # vertex -> incident faces, CSR
@@ -122,6 +123,12 @@ class Volume(Stage):
             A[j], B[j] = self.regions.posed_segments(j, fr.M)
         m = np.zeros(len(v))
         _mobility(X, mob, Z, ZJ, ZL, ZS, fr.fade, A, B, self.regions.R, m)
+        if self.params["volume_regions"] == "outside":
+            # Inflating the joint regions themselves can push skin through skin where
+            # two of them meet (CesiumMan's chest): grow the limbs between them instead.
+            if (key, -1) not in self._fold:
+                self._fold[(key, -1)] = np.flatnonzero(self._region[v] >= 0)
+            m[self._fold[(key, -1)]] = 0.0
         for j in fr.counts.get("collision_joints", ()):
             # the region whose fold the collision stage resolved stays as it is
             if (key, j) not in self._fold:
