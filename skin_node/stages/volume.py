@@ -91,6 +91,7 @@ class Volume(Stage):
             self.side.append((s[z] > 0.5).astype(np.int64))
         self.F = character.F
         self._region = r.region
+        self._threshold = r.threshold
         self.V0 = mesh_volume(character.V, character.F)
         self.regions = JointRegions(character)
         # vertex -> incident faces, CSR
@@ -130,13 +131,13 @@ class Volume(Stage):
                 self._fold[(key, -1)] = np.flatnonzero(self._region[v] >= 0)
             m[self._fold[(key, -1)]] = 0.0
         for j in fr.counts.get("collision_joints", ()):
-            # the region whose fold the collision stage resolved stays as it is
+            # The region whose fold the collision stage resolved stays as it is; the
+            # mobility rises smoothly past it (a step there would leave a ridge).
             if (key, j) not in self._fold:
-                rv = np.unique(self.F[self.regions.tris[j]])
-                loc = np.searchsorted(v, rv)
-                ok = (loc < len(v)) & (v[np.minimum(loc, len(v) - 1)] == rv)
-                self._fold[(key, j)] = loc[ok]
-            m[self._fold[(key, j)]] = 0.0
+                d = np.linalg.norm(self.character.V[v] - self.character.skeleton.rest_positions[j],
+                                   axis=1) / max(self._threshold[j], 1e-9)
+                self._fold[(key, j)] = np.clip((d - 1.0) / 0.75, 0.0, 1.0)
+            m *= self._fold[(key, j)]
         g = np.empty((len(v), 3))
         vol = volume_and_gradient(X, self.F, self.inc_ptr, self.inc, v, g)
         # Move along unit normals n = g/|g| by lam * m: an even layer whatever the
