@@ -197,13 +197,24 @@ class Collision(Stage):
         regs = self.regions
         eps = 0.5e-3
         projected = pushed = 0
-        joints = regs.active(fr.bent & (fr.angles > self.params["collision_angle"]))
+        folded = fr.bent & (fr.angles > self.params["collision_angle"])
+        joints = regs.active(folded)
         fr.counts["collision_joints"] = joints
+        # A folding joint also pushes skin into its siblings' regions (lowered arms into
+        # the neck's): those are checked too, with push-out only (they have no fold plane).
+        skel = self.character.skeleton
+        near = np.zeros_like(folded)
+        for j in joints:
+            near |= skel.parents == skel.parents[j]
+        near &= ~folded
+        near[skel.parents < 0] = False
+        siblings = [j for j in np.flatnonzero(near) if len(regs.verts[j])]
+        fr.counts["collision_joints"] = list(joints) + siblings
         upfront = self.params["collision_plane"] == "bisector" and \
             self.params["collision_halfspace"]
-        for j in joints:
-            plane = None
-            if upfront:
+        for j in list(joints) + siblings:
+            plane, planar = None, j in joints
+            if upfront and planar:
                 # The bisector does not depend on where the skin crossed, so the
                 # half-space projection needs no detection pass before it.
                 plane = self._plane_normal(fr, j, fr.G[j, :3, 3])
@@ -221,33 +232,34 @@ class Collision(Stage):
                 if sub is not None:
                     v, side = v[sub], side[sub]
                 sgn = 2.0 * side - 1.0
-                if plane is None:
+                if plane is None and planar:
+                    planar = False                   # one try at the paper's plane
                     pj = fr.G[j, :3, 3]
                     idx = v[crossed]
                     far = idx[np.argmax(np.linalg.norm(X[idx] - pj, axis=1))]
                     plane = self._plane_normal(fr, j, X[far])
-                    if plane is None:
-                        break
-                    projected += self._halfspace(X, fr, j, plane, crossed, eps)
-                    sub = None
-                elif self.params["collision_pushout"]:
-                    # Residuals (creases the plane cannot separate): push each crossed
-                    # vertex out in front of the skin it crossed, along that skin's normal.
-                    tri = hit >= 0
-                    f = hit[tri]
-                    nrm = np.einsum("tij,tj->ti", fr.M[regs.tri_bone[f], :3, :3],
-                                    regs.tri_normal[f])
-                    c = X[self.F[f]].mean(axis=1)
-                    depth = ((X[v[tri]] - c) * nrm).sum(1)
-                    X[v[tri]] += (eps - depth)[:, None] * nrm
+                    if plane is not None:
+                        projected += self._halfspace(X, fr, j, plane, crossed, eps)
+                        sub = None
+                        continue
+                if not self.params["collision_pushout"]:
+                    break
+                # Residuals (creases the plane cannot separate): push each crossed
+                # vertex out in front of the skin it crossed, along that skin's normal.
+                tri = hit >= 0
+                f = hit[tri]
+                nrm = np.einsum("tij,tj->ti", fr.M[regs.tri_bone[f], :3, :3],
+                                regs.tri_normal[f])
+                c = X[self.F[f]].mean(axis=1)
+                depth = ((X[v[tri]] - c) * nrm).sum(1)
+                X[v[tri]] += (eps - depth)[:, None] * nrm
+                deep = hit == -2
+                if plane is not None and deep.any():
                     pj, n = plane
-                    deep = hit == -2
                     dist = (X[v[deep]] - pj) @ n
                     X[v[deep]] -= (dist - sgn[deep] * eps)[:, None] * n[None, :]
-                    pushed += int(crossed.sum())
-                    where = np.flatnonzero(crossed) if sub is None else sub[crossed]
-                    sub = regs.ring(j, where)
-                else:
-                    break
+                pushed += int(crossed.sum())
+                where = np.flatnonzero(crossed) if sub is None else sub[crossed]
+                sub = regs.ring(j, where)
         fr.counts["projected"] = projected
         fr.counts["pushed"] = pushed
