@@ -83,7 +83,7 @@ class ParamSpec:
 
 
 PIPELINE_PARAMS = {
-    "iterations": ParamSpec(int, 3, 0, 200, "Gauss-Seidel iterations of the PBD solve per frame"),
+    "iterations": ParamSpec(int, 2, 0, 200, "Gauss-Seidel iterations of the PBD solve per frame"),
     "stiffness": ParamSpec(float, 0.5, 0.0, 1.0,
                            "energy-conservation spring constant k (the paper's 0.5)"),
     "solver": ParamSpec(str, "xpbd", description="'pbd' (stiffness scales each step, the paper) "
