@@ -77,6 +77,22 @@ def tet_volume(X, i1, i2, i3, i4):
 
 
 @nb.njit(cache=True, inline="always")
+def _volume_gradient(X, i1, i2, i3, i4):
+    """Signed volume of a tet and the gradients at its vertices 2, 3, 4
+    (``grad_1 = -(grad_2 + grad_3 + grad_4)``), as a flat tuple."""
+    ax, ay, az = X[i1, 0] - X[i2, 0], X[i1, 1] - X[i2, 1], X[i1, 2] - X[i2, 2]
+    bx, by, bz = X[i1, 0] - X[i3, 0], X[i1, 1] - X[i3, 1], X[i1, 2] - X[i3, 2]
+    cx, cy, cz = X[i1, 0] - X[i4, 0], X[i1, 1] - X[i4, 1], X[i1, 2] - X[i4, 2]
+    g2x, g2y, g2z = _cross(bx, by, bz, cx, cy, cz)
+    g3x, g3y, g3z = _cross(cx, cy, cz, ax, ay, az)
+    g4x, g4y, g4z = _cross(ax, ay, az, bx, by, bz)
+    vol = (g4x * cx + g4y * cy + g4z * cz) / 6.0
+    s = -1.0 / 6.0
+    return (vol, s * g2x, s * g2y, s * g2z, s * g3x, s * g3y, s * g3z,
+            s * g4x, s * g4y, s * g4z)
+
+
+@nb.njit(cache=True, inline="always")
 def volume_constraint(X, t, w, rest, k, alpha, lam, dp):
     """Tet volume: ``C = (1/6) [(p1 - p2) x (p1 - p3)] . (p1 - p4) - V0``.
 
@@ -86,17 +102,7 @@ def volume_constraint(X, t, w, rest, k, alpha, lam, dp):
     The signed form pushes an inverted tet back through zero towards ``V0``.
     """
     i1, i2, i3, i4 = t[0], t[1], t[2], t[3]
-    ax, ay, az = X[i1, 0] - X[i2, 0], X[i1, 1] - X[i2, 1], X[i1, 2] - X[i2, 2]
-    bx, by, bz = X[i1, 0] - X[i3, 0], X[i1, 1] - X[i3, 1], X[i1, 2] - X[i3, 2]
-    cx, cy, cz = X[i1, 0] - X[i4, 0], X[i1, 1] - X[i4, 1], X[i1, 2] - X[i4, 2]
-    g2x, g2y, g2z = _cross(bx, by, bz, cx, cy, cz)
-    g3x, g3y, g3z = _cross(cx, cy, cz, ax, ay, az)
-    g4x, g4y, g4z = _cross(ax, ay, az, bx, by, bz)
-    vol = (g4x * cx + g4y * cy + g4z * cz) / 6.0
-    s = -1.0 / 6.0
-    g2x, g2y, g2z = s * g2x, s * g2y, s * g2z
-    g3x, g3y, g3z = s * g3x, s * g3y, s * g3z
-    g4x, g4y, g4z = s * g4x, s * g4y, s * g4z
+    vol, g2x, g2y, g2z, g3x, g3y, g3z, g4x, g4y, g4z = _volume_gradient(X, i1, i2, i3, i4)
     g1x, g1y, g1z = -(g2x + g3x + g4x), -(g2y + g3y + g4y), -(g2z + g3z + g4z)
     w1, w2, w3, w4 = w[i1], w[i2], w[i3], w[i4]
     wsum = (w1 * (g1x * g1x + g1y * g1y + g1z * g1z) + w2 * (g2x * g2x + g2y * g2y + g2z * g2z)
@@ -247,29 +253,22 @@ def zone_volume_constraint(X, T, tets, verts, w, rest, k, g):
         i = verts[a]
         g[i, 0] = g[i, 1] = g[i, 2] = 0.0
     vol = 0.0
-    s = -1.0 / 6.0
     for a in range(tets.shape[0]):
-        t = T[tets[a]]
-        i1, i2, i3, i4 = t[0], t[1], t[2], t[3]
-        ax, ay, az = X[i1, 0] - X[i2, 0], X[i1, 1] - X[i2, 1], X[i1, 2] - X[i2, 2]
-        bx, by, bz = X[i1, 0] - X[i3, 0], X[i1, 1] - X[i3, 1], X[i1, 2] - X[i3, 2]
-        cx, cy, cz = X[i1, 0] - X[i4, 0], X[i1, 1] - X[i4, 1], X[i1, 2] - X[i4, 2]
-        g2x, g2y, g2z = _cross(bx, by, bz, cx, cy, cz)
-        g3x, g3y, g3z = _cross(cx, cy, cz, ax, ay, az)
-        g4x, g4y, g4z = _cross(ax, ay, az, bx, by, bz)
-        vol += (g4x * cx + g4y * cy + g4z * cz) / 6.0
-        g[i2, 0] += s * g2x
-        g[i2, 1] += s * g2y
-        g[i2, 2] += s * g2z
-        g[i3, 0] += s * g3x
-        g[i3, 1] += s * g3y
-        g[i3, 2] += s * g3z
-        g[i4, 0] += s * g4x
-        g[i4, 1] += s * g4y
-        g[i4, 2] += s * g4z
-        g[i1, 0] -= s * (g2x + g3x + g4x)
-        g[i1, 1] -= s * (g2y + g3y + g4y)
-        g[i1, 2] -= s * (g2z + g3z + g4z)
+        i1, i2, i3, i4 = T[tets[a], 0], T[tets[a], 1], T[tets[a], 2], T[tets[a], 3]
+        v, g2x, g2y, g2z, g3x, g3y, g3z, g4x, g4y, g4z = _volume_gradient(X, i1, i2, i3, i4)
+        vol += v
+        g[i2, 0] += g2x
+        g[i2, 1] += g2y
+        g[i2, 2] += g2z
+        g[i3, 0] += g3x
+        g[i3, 1] += g3y
+        g[i3, 2] += g3z
+        g[i4, 0] += g4x
+        g[i4, 1] += g4y
+        g[i4, 2] += g4z
+        g[i1, 0] -= g2x + g3x + g4x
+        g[i1, 1] -= g2y + g3y + g4y
+        g[i1, 2] -= g2z + g3z + g4z
     C = vol - rest
     wsum = 0.0
     for a in range(verts.shape[0]):

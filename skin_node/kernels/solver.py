@@ -15,6 +15,8 @@ import numpy as np
 from .constraints import (bind_constraint, contact_constraint, energy_constraint,
                           stretch_constraint, volume_constraint)
 
+STRETCH, VOLUME, ENERGY, BIND, TETS = 0, 1, 2, 3, 4
+
 
 @nb.njit(cache=True, inline="always")
 def _apply(X, t, dp):
@@ -70,37 +72,6 @@ def _tet_range(X, w, m, T, ks, vrest, erest, vlam, elam, idx, lo, hi, kv, av, ke
         _apply(X, t, dp)
 
 
-@nb.njit(cache=True, parallel=True)
-def _tet_parallel(X, w, m, T, ks, vrest, erest, vlam, elam, idx, bounds, kv, av, ke, ae, nchunk):
-    for c in range(bounds.shape[0] - 1):
-        lo, hi = bounds[c], bounds[c + 1]
-        n = hi - lo
-        if n <= 0:
-            continue
-        nch = nchunk if n >= 64 * nchunk else 1
-        for h in nb.prange(nch):
-            dp = np.zeros((4, 3))
-            _tet_range(X, w, m, T, ks, vrest, erest, vlam, elam, idx, lo + (n * h) // nch,
-                       lo + (n * (h + 1)) // nch, kv, av, ke, ae, dp)
-
-
-@nb.njit(cache=True)
-def _tet_sequential(X, w, m, T, ks, vrest, erest, vlam, elam, idx, bounds, kv, av, ke, ae):
-    dp = np.zeros((4, 3))
-    _tet_range(X, w, m, T, ks, vrest, erest, vlam, elam, idx, bounds[0],
-               bounds[bounds.shape[0] - 1], kv, av, ke, ae, dp)
-
-
-def tet_sweep(X, w, m, T, ks, vrest, erest, vlam, elam, idx, bounds, kv, av, ke, ae,
-              threads: int) -> None:
-    """One sweep of the volume and energy constraints together, tet by tet."""
-    if threads > 1 and bounds.shape[0] > 2:
-        _tet_parallel(X, w, m, T, ks, vrest, erest, vlam, elam, idx, bounds, kv, av, ke, ae,
-                      threads)
-    else:
-        _tet_sequential(X, w, m, T, ks, vrest, erest, vlam, elam, idx, bounds, kv, av, ke, ae)
-
-
 @nb.njit(cache=True, inline="always")
 def _bind_range(X, w, seg, A, B, rest, lam, idx, lo, hi, k, alpha, dp):
     for a in range(lo, hi):
@@ -126,9 +97,24 @@ def contact_sweep(X, w, idx, planes, plane_of):
             X[i, d] += dp[0, d]
 
 
+@nb.njit(cache=True, inline="always")
+def _range(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, lam2, idx, lo, hi, k, alpha,
+           k2, alpha2, dp):
+    if kind == STRETCH:
+        _stretch_range(X, w, E, rest, lam, idx, lo, hi, k, alpha, dp)
+    elif kind == VOLUME:
+        _volume_range(X, w, T, rest, lam, idx, lo, hi, k, alpha, dp)
+    elif kind == ENERGY:
+        _energy_range(X, w, m, T, ks, erest, lam, idx, lo, hi, k, alpha, dp)
+    elif kind == BIND:
+        _bind_range(X, w, seg, A, B, rest, lam, idx, lo, hi, k, alpha, dp)
+    else:
+        _tet_range(X, w, m, T, ks, rest, erest, lam, lam2, idx, lo, hi, k, alpha, k2, alpha2, dp)
+
+
 @nb.njit(cache=True, parallel=True)
-def _parallel(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha,
-              nchunk):
+def _parallel(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, lam2, idx, bounds, k, alpha,
+              k2, alpha2, nchunk):
     # One colour per (bounds[c], bounds[c+1]) range; chunks of a colour run in parallel.
     for c in range(bounds.shape[0] - 1):
         lo, hi = bounds[c], bounds[c + 1]
@@ -138,44 +124,34 @@ def _parallel(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds,
         nch = nchunk if n >= 64 * nchunk else 1
         for h in nb.prange(nch):
             dp = np.zeros((4, 3))
-            a0 = lo + (n * h) // nch
-            a1 = lo + (n * (h + 1)) // nch
-            if kind == 0:
-                _stretch_range(X, w, E, rest, lam, idx, a0, a1, k, alpha, dp)
-            elif kind == 1:
-                _volume_range(X, w, T, rest, lam, idx, a0, a1, k, alpha, dp)
-            elif kind == 2:
-                _energy_range(X, w, m, T, ks, erest, lam, idx, a0, a1, k, alpha, dp)
-            else:
-                _bind_range(X, w, seg, A, B, rest, lam, idx, a0, a1, k, alpha, dp)
+            _range(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, lam2, idx,
+                   lo + (n * h) // nch, lo + (n * (h + 1)) // nch, k, alpha, k2, alpha2, dp)
 
 
 @nb.njit(cache=True)
-def _sequential(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha):
+def _sequential(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, lam2, idx, bounds, k,
+                alpha, k2, alpha2):
     dp = np.zeros((4, 3))
-    lo, hi = bounds[0], bounds[bounds.shape[0] - 1]
-    if kind == 0:
-        _stretch_range(X, w, E, rest, lam, idx, lo, hi, k, alpha, dp)
-    elif kind == 1:
-        _volume_range(X, w, T, rest, lam, idx, lo, hi, k, alpha, dp)
-    elif kind == 2:
-        _energy_range(X, w, m, T, ks, erest, lam, idx, lo, hi, k, alpha, dp)
-    else:
-        _bind_range(X, w, seg, A, B, rest, lam, idx, lo, hi, k, alpha, dp)
+    _range(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, lam2, idx, bounds[0],
+           bounds[bounds.shape[0] - 1], k, alpha, k2, alpha2, dp)
 
 
 def sweep(kind: int, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha,
-          threads: int) -> None:
-    """One Gauss-Seidel sweep of one constraint type (0 stretch, 1 volume,
-    2 energy, 3 bind) over ``idx``; parallel over colours when ``threads > 1``.
+          threads: int, lam2=None, k2: float = 0.0, alpha2: float = 0.0) -> None:
+    """One Gauss-Seidel sweep of one constraint type over ``idx``: 0 stretch,
+    1 volume, 2 energy, 3 bind, or 4 ``TETS`` (volume then energy per tet, one
+    read of each tet's vertices for both; ``lam2, k2, alpha2`` are the energy's).
+    Parallel over colours when ``threads > 1``.
 
     ``rest`` (1-D) holds the rest values of stretch, volume or bind constraints,
     ``erest`` (t,4) the energy springs' rest lengths."""
+    lam2 = lam if lam2 is None else lam2
     if threads > 1 and bounds.shape[0] > 2:
-        _parallel(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha,
-                  threads)
+        _parallel(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, lam2, idx, bounds, k,
+                  alpha, k2, alpha2, threads)
     else:
-        _sequential(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha)
+        _sequential(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, lam2, idx, bounds, k,
+                    alpha, k2, alpha2)
 
 
 # --------------------------------------------------------------------------- skinning

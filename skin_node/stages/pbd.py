@@ -8,7 +8,8 @@ from ..kernels import solver
 from ..kernels.constraints import zone_volume_constraint
 from .base import Frame, Stage
 
-STRETCH, VOLUME, ENERGY, BIND, CONTACT, ZONE = 0, 1, 2, 3, 4, 5
+STRETCH, VOLUME, ENERGY, BIND = solver.STRETCH, solver.VOLUME, solver.ENERGY, solver.BIND
+CONTACT, ZONE = 5, 6                     # applied by their own loops, not by solver.sweep
 CONSTRAINTS = {"stretch": STRETCH, "volume": VOLUME, "energy": ENERGY, "bind": BIND,
                "contact": CONTACT, "zone_volume": ZONE}
 
@@ -204,9 +205,10 @@ class PBD(Stage):
                 if both and kind == ENERGY:
                     continue
                 if both and kind == VOLUME:
-                    solver.tet_sweep(X, w, self.mass, r.T, ks, r.vol0, r.erest, self.lam[VOLUME],
-                                     self.lam[ENERGY], idx, bounds, k, alpha, k_of[ENERGY],
-                                     a_of[ENERGY] if xpbd else 0.0, threads)
+                    solver.sweep(solver.TETS, X, w, self.mass, r.E, r.T, ks, r.bseg, fr.seg_A,
+                                 fr.seg_B, r.vol0, r.erest, self.lam[VOLUME], idx, bounds, k,
+                                 alpha, threads, self.lam[ENERGY], k_of[ENERGY],
+                                 a_of[ENERGY] if xpbd else 0.0)
                     continue
                 solver.sweep(kind, X, w, self.mass, r.E, r.T, ks, r.bseg, fr.seg_A, fr.seg_B,
                              r.len0 if kind == STRETCH else r.vol0 if kind == VOLUME
