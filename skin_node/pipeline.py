@@ -3,7 +3,6 @@ every stage. LBS-only, DQS, the paper's method and our default are the same
 code path with different lists and parameters, so they benchmark side by side."""
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass
 
@@ -248,6 +247,3 @@ class Pipeline:
         self.last_frame = fr
         return out
 
-
-def available_threads() -> int:
-    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1)

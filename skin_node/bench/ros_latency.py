@@ -37,7 +37,6 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import PointCloud2
     from shape_msgs.msg import Mesh
 

@@ -147,7 +147,7 @@ def write_gltf_morph(path: str | Path, frames: np.ndarray, faces: np.ndarray,
         raise ValueError(f"{path}: the glTF export writes binary .glb files")
     frames, faces = _check_frames(frames, faces)
     Y = (frames @ Z_UP_TO_Y_UP.T).astype(np.float32)
-    base, T, n = Y[0], len(Y), Y.shape[1]
+    base, T = Y[0], len(Y)
     blobs: list[bytes] = []
     views, accessors = [], []
 

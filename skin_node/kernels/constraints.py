@@ -22,7 +22,6 @@ from __future__ import annotations
 import math
 
 import numba as nb
-import numpy as np
 
 _EPS = 1e-12
 
@@ -211,11 +210,6 @@ def energy_constraint(X, t, w, m, ks, rest, k, alpha, lam, dp):
         dp[a, 1] *= wa
         dp[a, 2] *= wa
     return dlam
-
-
-def scratch() -> np.ndarray:
-    """A (4, 3) correction buffer for the constraint functions."""
-    return np.zeros((4, 3))
 
 
 @nb.njit(cache=True, inline="always")

@@ -24,7 +24,6 @@ class JointRegions:
         J = skel.n_joints
         below = skel.subtree()          # below[j, b]: b is j or under j
         dom = r.Widx[np.arange(len(r.Widx)), np.argmax(r.Wval, axis=1)]
-        P = skel.rest_positions
         self.child = np.array([skel.children(j)[0] if skel.children(j) else -1 for j in range(J)])
         self.verts, self.vside, self.tris, self.tside = [], [], [], []
         self.R = np.zeros((J, 2))

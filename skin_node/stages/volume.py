@@ -18,7 +18,6 @@ import numba as nb
 import numpy as np
 
 from ..metrics import mesh_volume
-from ..rigging.weights import point_segment_distance
 from .base import Frame, Stage
 from .collision import JointRegions
 
