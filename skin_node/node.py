@@ -394,23 +394,33 @@ def spin_until_shutdown(node: Node, future: Future | None = None) -> None:
             raise
 
 
+def build(name: str, factory):
+    """Run ``factory()`` (a node's whole set-up) as a console script should.
+
+    Returns ``(node, None)``, or ``(None, exit_code)``: 0 when SIGINT/SIGTERM
+    arrived during set-up, 2 after printing one line ``<name>: error: ...``
+    (never a bare traceback) for a bad parameter, file or any other failure.
+    """
+    try:
+        with setting_up():
+            return factory(), None
+    except KeyboardInterrupt:
+        rclpy.try_shutdown()
+        return None, 0
+    except (ValueError, OSError, ParameterException) as e:
+        print(f"{name}: error: {e}", file=sys.stderr)
+    except Exception as e:  # noqa: BLE001 - one line, not a traceback, for any set-up failure
+        print(f"{name}: error: {type(e).__name__}: {e}", file=sys.stderr)
+    rclpy.try_shutdown()
+    return None, 2
+
+
 def main(args: list | None = None) -> int:
     """Console script ``skin_node``: exit 0 on SIGINT/SIGTERM, 2 on a set-up error."""
     init_ros(args)
-    try:
-        with setting_up():
-            node = SkinNode()
-    except KeyboardInterrupt:
-        rclpy.try_shutdown()
-        return 0
-    except (ValueError, OSError, ParameterException) as e:
-        print(f"{NODE_NAME}: error: {e}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    except Exception as e:  # noqa: BLE001 - one line, not a traceback, for any set-up failure
-        print(f"{NODE_NAME}: error: {type(e).__name__}: {e}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
+    node, code = build(NODE_NAME, SkinNode)
+    if node is None:
+        return code
     try:
         spin_until_shutdown(node)
     finally:

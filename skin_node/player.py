@@ -16,13 +16,12 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
-from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
 
 from msg_adapters import channels_to_joint_state, load_name_map
-from skin_node.node import QOS_JOINT_STATES, init_ros, setting_up, spin_until_shutdown
+from skin_node.node import QOS_JOINT_STATES, build, init_ros, spin_until_shutdown
 
 
 
@@ -126,16 +125,9 @@ def main(argv: list[str] | None = None) -> int:
     args_ros = sys.argv if argv is None else ["mocap_player", *argv]
     defaults = _parse(rclpy.utilities.remove_ros_args(args_ros)[1:])
     init_ros(args_ros)
-    try:
-        with setting_up():
-            node = MocapPlayer(defaults)
-    except KeyboardInterrupt:
-        rclpy.try_shutdown()
-        return 0
-    except (ValueError, OSError, ParameterException) as e:
-        print(f"mocap_player: error: {e}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
+    node, code = build("mocap_player", lambda: MocapPlayer(defaults))
+    if node is None:
+        return code
     try:
         spin_until_shutdown(node, node.done)
         if node.done.done():
