@@ -62,14 +62,8 @@ def _tet_range(X, w, m, T, ks, vrest, erest, vlam, elam, idx, lo, hi, kv, av, ke
     # Volume then energy per tet: one pass over the tets reads each tet's
     # vertices once for both constraints (a valid Gauss-Seidel order too).
     for a in range(lo, hi):
-        c = idx[a]
-        t = T[c]
-        dlam = volume_constraint(X, t, w, vrest[c], kv, av, vlam[c], dp)
-        vlam[c] += dlam
-        _apply(X, t, dp)
-        dlam = energy_constraint(X, t, w, m, ks, erest[c], ke, ae, elam[c], dp)
-        elam[c] += dlam
-        _apply(X, t, dp)
+        _volume_range(X, w, T, vrest, vlam, idx, a, a + 1, kv, av, dp)
+        _energy_range(X, w, m, T, ks, erest, elam, idx, a, a + 1, ke, ae, dp)
 
 
 @nb.njit(cache=True, inline="always")
