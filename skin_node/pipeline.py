@@ -124,9 +124,14 @@ PIPELINE_PARAMS = {
     "collision_halfspace": ParamSpec(bool, True, description="also project every vertex of the "
                                      "interpenetration zone on the wrong side of the plane"),
     "volume_preserve": ParamSpec(bool, True, description="run the volume stage"),
-    "volume_regions": ParamSpec(str, "inside", description="where the volume stage may move "
-                                "skin: 'inside' the bent joints' zones, regions included, or "
-                                "only 'outside' their joint regions", choices=("inside", "outside")),
+    "volume_regions": ParamSpec(str, "joints", description="what the volume stage keeps: "
+                                "'joints', each bent joint's region volume, moving that region; "
+                                "or the whole mesh's volume, moving skin 'inside' the bent "
+                                "joints' zones (regions included) or only 'outside' their "
+                                "joint regions", choices=("joints", "inside", "outside")),
+    "volume_max_bulge": ParamSpec(float, 0.5, 0.0, 2.0, "with volume_regions 'joints': the "
+                                  "most any skin moves to give a region its volume back, in "
+                                  "limb radii of the joint"),
     "smoothing": ParamSpec(float, 0.5, 0.0, 1.0, "Laplacian smoothing strength k"),
     "smoothing_iterations": ParamSpec(int, 4, 0, 50, "Laplacian smoothing passes"),
     "smooth_mode": ParamSpec(str, "displacement", description="'position' (the paper: smooth "

@@ -155,9 +155,10 @@ def test_no_nan_and_no_more_crossings_than_lbs(acceptance, weights, clip):
 
 
 @pytest.mark.xfail(strict=True, reason=(
-    "measured on every 4th frame, most-bent joint's region volume / rest: automatic weights "
-    "walk 0.85-1.01 (LBS 0.84-0.94), punch 0.60-1.01 (LBS 0.51-0.92); file weights walk "
-    "0.51-0.80 (LBS 0.71-0.87), punch 0.42-1.03 (LBS 0.43-0.86): not yet within 3%"))
+    "measured on the frames above, most-bent joint's region volume / rest: automatic weights "
+    "walk 0.85-1.00, punch 0.96-0.97; file weights walk 0.53-0.89, punch 0.92-0.98. The "
+    "shoulder regions hold 11 to 14 vertices and sit within the torso's flesh radius, where "
+    "the volume stage may not move skin (it would cross the torso): not yet within 3%"))
 @pytest.mark.parametrize("weights", ["automatic", "file"])
 @pytest.mark.parametrize("clip", list(CLIPS))
 def test_joint_region_volume_within_3_percent(acceptance, weights, clip):

@@ -61,6 +61,36 @@ def test_wrist_twist_180_keeps_section(arm):
     assert lbs < 0.2, lbs          # the candy wrapper
 
 
+def test_walk_keeps_every_bent_joint_region_volume(humanoid):
+    """The built-in walk, every 8th frame: each bent joint's region (the cone
+    from its posed centre over its skin, :func:`region_volume`) within 3% of
+    rest, where the stages before the volume stage lose over 10% at the
+    lowered shoulders; and no more crossings than without the volume stage."""
+    from skin_node import make_clip
+    from skin_node.metrics import region_volume
+    ch = humanoid
+    skel, regions = ch.skeleton, JointRegions(ch)
+    joints = [j for j in range(1, skel.n_joints) if len(regions.tris[j])]
+    rest = {j: region_volume(ch.V, ch.F, regions.tris[j], skel.rest_positions[j]) for j in joints}
+    frames = make_clip("walk", skel).frames[::8]
+    ours, before = Pipeline(ch), Pipeline(ch, volume_preserve=False)
+    worst, worst_before, cross, cross_before = 1.0, 1.0, 0, 0
+    for q in frames:
+        for pipe in (ours, before):
+            V = pipe.deform(q)
+            fr = pipe.last_frame
+            r = min(region_volume(V, ch.F, regions.tris[j], fr.G[j, :3, 3]) / rest[j]
+                    for j in joints if fr.bent[j])
+            n = count_crossings(V, ch.V, ch.F, fr.M, regions)
+            if pipe is ours:
+                worst, cross = min(worst, r), cross + n
+            else:
+                worst_before, cross_before = min(worst_before, r), cross_before + n
+    assert worst >= 0.97, worst
+    assert worst_before < 0.9, worst_before
+    assert cross <= cross_before, (cross, cross_before)
+
+
 @pytest.mark.parametrize("case", ["arm", "humanoid"])
 def test_no_skin_crossings_after_collision(case, arm, humanoid):
     ch = arm if case == "arm" else humanoid

@@ -33,6 +33,9 @@ class Frame:
         Posed bone segments (see :meth:`Skeleton.bone_segments`).
     counts : dict
         Per-stage counters of this frame (active tets, crossings, ...).
+    touched : list of int arrays
+        Surface vertices the collision stage moved (skin in contact), so later
+        stages leave them where they are.
     """
 
     q: np.ndarray
@@ -48,6 +51,7 @@ class Frame:
     seg_A: np.ndarray
     seg_B: np.ndarray
     counts: dict = field(default_factory=dict)
+    touched: list = field(default_factory=list)
 
 
 class Stage:

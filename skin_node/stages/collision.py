@@ -187,6 +187,7 @@ class Collision(Stage):
             move |= (sgn * dist < eps) & regs.in_other(X, fr.M, j)
         dist = (X[v[move]] - pj) @ n
         X[v[move]] -= (dist - sgn[move] * eps)[:, None] * n[None, :]
+        fr.touched.append(v[move])
         return int(move.sum())
 
     def __call__(self, fr: Frame) -> None:
@@ -252,11 +253,13 @@ class Collision(Stage):
                 c = X[self.F[f]].mean(axis=1)
                 depth = ((X[v[tri]] - c) * nrm).sum(1)
                 X[v[tri]] += (eps - depth)[:, None] * nrm
+                fr.touched.append(v[tri])
                 deep = hit == -2
                 if plane is not None and deep.any():
                     pj, n = plane
                     dist = (X[v[deep]] - pj) @ n
                     X[v[deep]] -= (dist - sgn[deep] * eps)[:, None] * n[None, :]
+                    fr.touched.append(v[deep])
                 pushed += int(crossed.sum())
                 where = np.flatnonzero(crossed) if sub is None else sub[crossed]
                 sub = regs.ring(j, where)

@@ -1,23 +1,33 @@
 """Post-processing past the paper: give back the volume the skin lost.
 
-After the solve, the collision projection and the smoothing, the enclosed
-volume is short of the rest volume: flesh squeezed at a fold was flattened
-away and smoothing shrinks. Following the closed-mesh volume constraint of
-Müller et al. 2007 (section 4.5) and the normal displacements of von Funck et
-al. 2008 ("Volume-preserving mesh skinning"), one global constraint
-``C = V(p) - V0`` moves the skin of the bent joints' regions along its
-unit normals, scaled by a mobility that is 1 where a vertex's weights
-are split evenly across the joint and 0 where one bone owns it, so the bulge
-forms around the joint and fades out smoothly. The regions whose folds the
-collision stage resolved, and any vertex within the other side's flesh
-radius, do not move, so the folds stay resolved.
+After the solve, the collision projection and the smoothing, the skin around a
+bent joint holds less than it did at rest: flesh squeezed at a fold was
+flattened away and smoothing shrinks. Following the closed-mesh volume
+constraint of Müller et al. 2007 (section 4.5) and the normal displacements of
+von Funck et al. 2008 ("Volume-preserving mesh skinning"), a volume constraint
+``C = V(p) - V0`` moves skin along its unit normals, scaled by a mobility
+that is 1 where a vertex's weights are split evenly across the joint and 0
+where one bone owns it, so the bulge forms around the joint and fades out
+smoothly.
+
+``volume_regions: joints`` (the default) keeps every bent joint's own region
+at its rest volume: the volume enclosed by the region's skin and the cone from
+the joint's posed centre to it (:func:`skin_node.metrics.region_volume`), one
+constraint per joint. Skin the collision stage pressed into contact, and its
+neighbours within half the joint's limb radius, does not move, nor does skin
+within the other side's flesh radius of its bone, so resolved folds stay
+resolved and the volume reappears as a bulge on the outside of the bend.
+``inside`` / ``outside`` keep only the whole mesh's volume instead, moving
+the bent joints' zones with or without their joint regions.
 """
 from __future__ import annotations
+
+import math
 
 import numba as nb
 import numpy as np
 
-from ..metrics import mesh_volume
+from ..metrics import mesh_volume, region_volume
 from .base import Frame, Stage
 from .collision import JointRegions
 
@@ -69,8 +79,91 @@ def _mobility(X, mob, Z, ZJ, ZL, ZS, fade, A, B, R, m):
             m[ZL[e]] = val
 
 
+@nb.njit(cache=True)
+def region_volume_gradient(X, F, tris, cx, cy, cz, g):
+    """Volume of the cone from ``c`` over the triangles ``tris`` and its gradient,
+    written into ``g`` at their vertices (other rows of ``g`` are left alone)."""
+    for a in range(tris.shape[0]):
+        for e in range(3):
+            v = F[tris[a], e]
+            g[v, 0] = g[v, 1] = g[v, 2] = 0.0
+    vol = 0.0
+    for a in range(tris.shape[0]):
+        i, j, k = F[tris[a], 0], F[tris[a], 1], F[tris[a], 2]
+        ax, ay, az = X[i, 0] - cx, X[i, 1] - cy, X[i, 2] - cz
+        bx, by, bz = X[j, 0] - cx, X[j, 1] - cy, X[j, 2] - cz
+        qx, qy, qz = X[k, 0] - cx, X[k, 1] - cy, X[k, 2] - cz
+        # b x q, q x a, a x b: the gradients at i, j, k (times 6)
+        ux, uy, uz = by * qz - bz * qy, bz * qx - bx * qz, bx * qy - by * qx
+        vx, vy, vz = qy * az - qz * ay, qz * ax - qx * az, qx * ay - qy * ax
+        wx, wy, wz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+        vol += (ax * ux + ay * uy + az * uz) / 6.0
+        g[i, 0] += ux / 6.0
+        g[i, 1] += uy / 6.0
+        g[i, 2] += uz / 6.0
+        g[j, 0] += vx / 6.0
+        g[j, 1] += vy / 6.0
+        g[j, 2] += vz / 6.0
+        g[k, 0] += wx / 6.0
+        g[k, 1] += wy / 6.0
+        g[k, 2] += wz / 6.0
+    return vol
+
+
+@nb.njit(cache=True)
+def move_along_normals(X, verts, m, g, C, budget):
+    """Project ``C = 0`` to first order by moving ``verts`` along their unit
+    normals ``g / |g|`` by ``lam * m_i``; ``dV = sum g . dp = lam sum m |g|``.
+    ``|lam|`` is clipped to ``budget``; returns the ``lam`` applied."""
+    den = 0.0
+    for a in range(verts.shape[0]):
+        i = verts[a]
+        den += m[a] * math.sqrt(g[i, 0] ** 2 + g[i, 1] ** 2 + g[i, 2] ** 2)
+    if den <= 1e-30:
+        return 0.0
+    lam = min(max(-C / den, -budget), budget)
+    for a in range(verts.shape[0]):
+        i = verts[a]
+        L = math.sqrt(g[i, 0] ** 2 + g[i, 1] ** 2 + g[i, 2] ** 2)
+        if L > 1e-30:
+            f = lam * m[a] / L
+            X[i, 0] += f * g[i, 0]
+            X[i, 1] += f * g[i, 1]
+            X[i, 2] += f * g[i, 2]
+    return lam
+
+
+@nb.njit(cache=True)
+def ring_distance(sources, ptr, nbr, hops, limit, queue):
+    """Breadth-first hop counts from ``sources`` over the one-ring CSR, up to
+    ``limit``; ``hops`` must hold ``limit`` everywhere on entry. Returns the
+    number of vertices reached; ``queue[:n]`` lists them (to reset ``hops``)."""
+    n = 0
+    for a in range(sources.shape[0]):
+        i = sources[a]
+        if hops[i] != 0:
+            hops[i] = 0
+            queue[n] = i
+            n += 1
+    head = 0
+    while head < n:
+        i = queue[head]
+        head += 1
+        h = hops[i] + 1
+        if h >= limit:
+            continue
+        for b in range(ptr[i], ptr[i + 1]):
+            k = nbr[b]
+            if hops[k] > h:
+                hops[k] = h
+                queue[n] = k
+                n += 1
+    return n
+
+
 class Volume(Stage):
-    """Global volume constraint on the surface, moving the bent joints' regions."""
+    """Volume constraints on the surface: one per bent joint's region, or one
+    for the whole mesh (``volume_regions``)."""
 
     name = "volume"
 
@@ -92,7 +185,31 @@ class Volume(Stage):
         self._region = r.region
         self._threshold = r.threshold
         self.V0 = mesh_volume(character.V, character.F)
-        self.regions = JointRegions(character)
+        self.regions = regs = JointRegions(character)
+        # Per joint region: its triangles' vertices that may move (the zone's),
+        # their side and mobility, and the region's rest volume about the joint.
+        self.rverts, self.rside, self.rmob = [], [], []
+        self.rvol0 = np.zeros(J)
+        for j in range(J):
+            t = regs.tris[j]
+            v = np.unique(self.F[t]) if len(t) and j > 0 else np.zeros(0, np.int64)
+            keep = (np.isin(v, self.zone[j]) & (r.region[v] == j)) if j > 0 else np.zeros(0, bool)
+            v = v[keep]
+            self.rverts.append(v.astype(np.int64))
+            self.rmob.append(self.mobility[v, j] if j > 0 else np.zeros(0))
+            self.rside.append(self.side[j][np.searchsorted(self.zone[j], v)] if j > 0
+                              else np.zeros(0, np.int64))
+            if len(t):
+                self.rvol0[j] = region_volume(character.V, self.F, t, skel.rest_positions[j])
+        # skin in contact keeps still over half the joint's limb radius (in rings)
+        e = np.linalg.norm(character.V[self.F[:, 0]] - character.V[self.F[:, 1]], axis=1)
+        self._ring_edge = max(float(np.median(e)), 1e-9)
+        self._ring_width = np.maximum(0.5 * r.radius / self._ring_edge, 1.0)
+        self._hop_limit = int(min(np.ceil(self._ring_width.max()) + 1, 64))
+        self._hops = np.full(len(character.V), self._hop_limit, dtype=np.int64)
+        self._queue = np.empty(len(character.V), dtype=np.int64)
+        self._ptr, self._adj = r.adj_ptr, r.adj
+        self._g = np.zeros((len(character.V), 3))
         # vertex -> incident faces, CSR
         F = character.F
         order = np.argsort(F.ravel(), kind="stable")
@@ -104,6 +221,55 @@ class Volume(Stage):
         js = np.flatnonzero(fr.bent)
         if not len(js) or not self.params["volume_preserve"]:
             return
+        if self.params["volume_regions"] == "joints":
+            self._joints(fr, js)
+        else:
+            self._whole(fr, js)
+
+    def _posed(self, fr: Frame, js):
+        J = len(fr.fade)
+        A = np.zeros((J, 2, 3))
+        B = np.zeros((J, 2, 3))
+        for j in js:
+            A[j], B[j] = self.regions.posed_segments(j, fr.M)
+        return A, B
+
+    def _joints(self, fr: Frame, js) -> None:
+        X = fr.surface
+        A, B = self._posed(fr, js)
+        hops = self._hops
+        reached = 0
+        if fr.touched:
+            src = np.concatenate(fr.touched).astype(np.int64)
+            reached = ring_distance(src, self._ptr, self._adj, hops, self._hop_limit, self._queue)
+        worst = 1.0
+        cap = float(self.params["volume_max_bulge"])
+        for j in js:
+            v = self.rverts[j]
+            if not len(v):
+                continue
+            m = np.zeros(len(v))
+            _mobility(X, self.rmob[j], v, np.full(len(v), j), np.arange(len(v)), self.rside[j],
+                      fr.fade, A, B, self.regions.R, m)
+            if reached:
+                m *= np.minimum(hops[v] / self._ring_width[j], 1.0)
+            c = fr.G[j, :3, 3]
+            t = self.regions.tris[j]
+            # No vertex moves farther than volume_max_bulge limb radii: past that a
+            # deep fold's lost volume is not worth a balloon (the cones of a region
+            # folded past ~120 degrees overlap, and no skin can make that up).
+            budget = cap * self.regions.radius[j] / max(float(m.max(initial=0.0)), 1e-12)
+            for _ in range(2):
+                vol = region_volume_gradient(X, self.F, t, c[0], c[1], c[2], self._g)
+                budget -= abs(move_along_normals(X, v, m, self._g, vol - self.rvol0[j], budget))
+            worst = min(worst, region_volume_gradient(X, self.F, t, c[0], c[1], c[2], self._g)
+                        / self.rvol0[j])
+        if reached:
+            hops[self._queue[:reached]] = self._hop_limit
+        fr.counts["region_volume_min"] = worst
+
+    def _whole(self, fr: Frame, js) -> None:
+        """One constraint on the whole mesh's volume, moving the bent joints' zones."""
         key = fr.bent.tobytes()
         if key != self._key:
             self._key, self._fold = key, {}
@@ -116,11 +282,7 @@ class Volume(Stage):
         v = self._verts
         Z, ZJ, ZL, ZS, mob = self._entries
         X = fr.surface
-        J = len(fr.fade)
-        A = np.zeros((J, 2, 3))
-        B = np.zeros((J, 2, 3))
-        for j in js:
-            A[j], B[j] = self.regions.posed_segments(j, fr.M)
+        A, B = self._posed(fr, js)
         m = np.zeros(len(v))
         _mobility(X, mob, Z, ZJ, ZL, ZS, fr.fade, A, B, self.regions.R, m)
         if self.params["volume_regions"] == "outside":
