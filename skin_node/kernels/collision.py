@@ -205,3 +205,20 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, 
         if Fnow < 0.0 and Frest > -rest_tol:
             out[a] = best
     return out
+
+
+@nb.njit(cache=True)
+def near_points(X, verts, P, r):
+    """Positions into ``verts`` of the vertices within ``r`` of any point of ``P``."""
+    out = np.empty(verts.shape[0], dtype=np.int64)
+    n = 0
+    rr = r * r
+    for a in range(verts.shape[0]):
+        i = verts[a]
+        for b in range(P.shape[0]):
+            d = (X[i, 0] - P[b, 0]) ** 2 + (X[i, 1] - P[b, 1]) ** 2 + (X[i, 2] - P[b, 2]) ** 2
+            if d < rr:
+                out[n] = a
+                n += 1
+                break
+    return out[:n]

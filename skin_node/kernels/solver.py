@@ -15,7 +15,11 @@ import numpy as np
 from .constraints import (bind_constraint, contact_constraint, energy_constraint,
                           stretch_constraint, volume_constraint)
 
-STRETCH, VOLUME, ENERGY, BIND, TETS = 0, 1, 2, 3, 4
+STRETCH, VOLUME, ENERGY, BIND = 0, 1, 2, 3
+
+#: Fast-math flags of the hot loops: reassociation, reciprocals, contraction,
+#: approximate functions. Not ``nnan``/``ninf``: the finiteness checks stay exact.
+FAST = {"nsz", "arcp", "contract", "afn", "reassoc"}
 
 
 @nb.njit(cache=True, inline="always")
@@ -58,15 +62,6 @@ def _energy_range(X, w, m, T, ks, rest, lam, idx, lo, hi, k, alpha, dp):
 
 
 @nb.njit(cache=True, inline="always")
-def _tet_range(X, w, m, T, ks, vrest, erest, vlam, elam, idx, lo, hi, kv, av, ke, ae, dp):
-    # Volume then energy per tet: one pass over the tets reads each tet's
-    # vertices once for both constraints (a valid Gauss-Seidel order too).
-    for a in range(lo, hi):
-        _volume_range(X, w, T, vrest, vlam, idx, a, a + 1, kv, av, dp)
-        _energy_range(X, w, m, T, ks, erest, elam, idx, a, a + 1, ke, ae, dp)
-
-
-@nb.njit(cache=True, inline="always")
 def _bind_range(X, w, seg, A, B, rest, lam, idx, lo, hi, k, alpha, dp):
     for a in range(lo, hi):
         i = idx[a]
@@ -92,23 +87,20 @@ def contact_sweep(X, w, idx, planes, plane_of):
 
 
 @nb.njit(cache=True, inline="always")
-def _range(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, lam2, idx, lo, hi, k, alpha,
-           k2, alpha2, dp):
+def _range(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, lo, hi, k, alpha, dp):
     if kind == STRETCH:
         _stretch_range(X, w, E, rest, lam, idx, lo, hi, k, alpha, dp)
     elif kind == VOLUME:
         _volume_range(X, w, T, rest, lam, idx, lo, hi, k, alpha, dp)
     elif kind == ENERGY:
         _energy_range(X, w, m, T, ks, erest, lam, idx, lo, hi, k, alpha, dp)
-    elif kind == BIND:
-        _bind_range(X, w, seg, A, B, rest, lam, idx, lo, hi, k, alpha, dp)
     else:
-        _tet_range(X, w, m, T, ks, rest, erest, lam, lam2, idx, lo, hi, k, alpha, k2, alpha2, dp)
+        _bind_range(X, w, seg, A, B, rest, lam, idx, lo, hi, k, alpha, dp)
 
 
-@nb.njit(cache=True, parallel=True)
-def _parallel(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, lam2, idx, bounds, k, alpha,
-              k2, alpha2, nchunk):
+@nb.njit(cache=True, parallel=True, fastmath=FAST)
+def _parallel(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha,
+              nchunk):
     # One colour per (bounds[c], bounds[c+1]) range; chunks of a colour run in parallel.
     for c in range(bounds.shape[0] - 1):
         lo, hi = bounds[c], bounds[c + 1]
@@ -118,34 +110,29 @@ def _parallel(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, lam2, idx, b
         nch = nchunk if n >= 64 * nchunk else 1
         for h in nb.prange(nch):
             dp = np.zeros((4, 3))
-            _range(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, lam2, idx,
-                   lo + (n * h) // nch, lo + (n * (h + 1)) // nch, k, alpha, k2, alpha2, dp)
+            _range(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx,
+                   lo + (n * h) // nch, lo + (n * (h + 1)) // nch, k, alpha, dp)
 
 
-@nb.njit(cache=True)
-def _sequential(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, lam2, idx, bounds, k,
-                alpha, k2, alpha2):
+@nb.njit(cache=True, fastmath=FAST)
+def _sequential(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha):
     dp = np.zeros((4, 3))
-    _range(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, lam2, idx, bounds[0],
-           bounds[bounds.shape[0] - 1], k, alpha, k2, alpha2, dp)
+    _range(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds[0],
+           bounds[bounds.shape[0] - 1], k, alpha, dp)
 
 
 def sweep(kind: int, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha,
-          threads: int, lam2=None, k2: float = 0.0, alpha2: float = 0.0) -> None:
+          threads: int) -> None:
     """One Gauss-Seidel sweep of one constraint type over ``idx``: 0 stretch,
-    1 volume, 2 energy, 3 bind, or 4 ``TETS`` (volume then energy per tet, one
-    read of each tet's vertices for both; ``lam2, k2, alpha2`` are the energy's).
-    Parallel over colours when ``threads > 1``.
+    1 volume, 2 energy or 3 bind. Parallel over colours when ``threads > 1``.
 
     ``rest`` (1-D) holds the rest values of stretch, volume or bind constraints,
     ``erest`` (t,4) the energy springs' rest lengths."""
-    lam2 = lam if lam2 is None else lam2
     if threads > 1 and bounds.shape[0] > 2:
-        _parallel(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, lam2, idx, bounds, k,
-                  alpha, k2, alpha2, threads)
+        _parallel(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha,
+                  threads)
     else:
-        _sequential(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, lam2, idx, bounds, k,
-                    alpha, k2, alpha2)
+        _sequential(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha)
 
 
 # --------------------------------------------------------------------------- skinning

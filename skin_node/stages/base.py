@@ -1,6 +1,7 @@
 """The per-frame state and the interface every stage implements."""
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -74,3 +75,26 @@ class Stage:
 
     def reset(self) -> None:
         """Forget any state carried between frames."""
+
+
+class KeyedCache:
+    """Set-up results per key (a set of bent joints, say), the ``size`` most
+    recently used kept: a walk swings its hips in and out of the bent set
+    every stride, and rebuilding index arrays each time cost whole frames."""
+
+    def __init__(self, size: int = 32) -> None:
+        self.size = size
+        self._d: OrderedDict = OrderedDict()
+
+    def get(self, key, make):
+        """The value for ``key``, from ``make()`` the first time."""
+        if key in self._d:
+            self._d.move_to_end(key)
+            return self._d[key]
+        value = self._d[key] = make()
+        if len(self._d) > self.size:
+            self._d.popitem(last=False)
+        return value
+
+    def clear(self) -> None:
+        self._d.clear()

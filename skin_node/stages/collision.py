@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels.collision import crossed_vertices
+from ..kernels.collision import crossed_vertices, near_points
 from ..rigging.weights import point_segment_distance
 from .base import Frame, Stage
 
@@ -262,6 +262,10 @@ class Collision(Stage):
                     fr.touched.append(v[deep])
                 pushed += int(crossed.sum())
                 where = np.flatnonzero(crossed) if sub is None else sub[crossed]
-                sub = regs.ring(j, where)
+                # A pushed vertex drags its triangles over the skin facing it, which
+                # is not in its one ring: recheck everything near it too.
+                near = near_points(X, regs.verts[j], X[regs.verts[j][where]],
+                                   2.0 * regs.emax)
+                sub = np.union1d(regs.ring(j, where), near)
         fr.counts["projected"] = projected
         fr.counts["pushed"] = pushed

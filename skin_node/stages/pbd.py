@@ -6,7 +6,7 @@ import numpy as np
 
 from ..kernels import solver
 from ..kernels.constraints import zone_volume_constraint
-from .base import Frame, Stage
+from .base import Frame, KeyedCache, Stage
 
 STRETCH, VOLUME, ENERGY, BIND = solver.STRETCH, solver.VOLUME, solver.ENERGY, solver.BIND
 CONTACT, ZONE = 5, 6                     # applied by their own loops, not by solver.sweep
@@ -44,7 +44,8 @@ class PBD(Stage):
         self.w_all = 1.0 / np.maximum(r.mass, 1e-30)
         self.lam = {k: np.zeros(n) for k, n in
                     ((STRETCH, len(r.E)), (VOLUME, len(r.T)), (ENERGY, len(r.T)), (BIND, len(r.TV)))}
-        self._key = self._zkey = None
+        self._key = None
+        self._sets, self._zsets = KeyedCache(), KeyedCache()
         self._g = np.zeros((len(r.TV), 3))
         # Warm start: last frame's correction in the frame of each vertex's main bone.
         self._dom = r.TWidx[np.arange(len(r.TV)), np.argmax(r.TWval, axis=1)]
@@ -78,16 +79,15 @@ class PBD(Stage):
 
     def _zones(self, bent: np.ndarray):
         """(tets, vertices, rest volume) of each bent joint's zone, cached."""
-        key = bent.tobytes()
-        if key != self._zkey:
+        def make():
             r = self.rig
             out = []
             for j in np.flatnonzero(bent):
                 zt = np.flatnonzero(r.zone[r.T, j].any(axis=1))
                 if len(zt):
                     out.append((zt, np.unique(r.T[zt]), float(r.vol0[zt].sum())))
-            self._zkey, self._zcache = key, out
-        return self._zcache
+            return out
+        return self._zsets.get(bent.tobytes(), make)
 
     def _contacts(self, fr: Frame):
         """Contact planes of the joints bent past ``contact_angle`` and the tet
@@ -133,37 +133,42 @@ class PBD(Stage):
 
     def reset(self) -> None:
         self._key = None
+        self._sets.clear()
         self._corr[:] = 0.0
 
     def _active(self, bent: np.ndarray):
         """Index arrays of the constraints to solve and the inverse masses, cached
-        per set of bent joints (a walk keeps the same set frame after frame)."""
+        per set of bent joints (a walk cycles through a few sets)."""
         p = self.params
         key = (bent.tobytes() if p["active_regions"] else b"all", int(p["threads"]) > 1)
-        if key == self._key:
-            return self._cache
+        act = self._sets.get(key, lambda: self._make_active(bent, key[1]))
+        if key != self._key:
+            self._key = key
+            # warm-start corrections of vertices that left the solve are stale
+            self._corr[~act[2] if act is not None else slice(None)] = 0.0
+        return act
+
+    def _make_active(self, bent: np.ndarray, coloured: bool):
         r = self.rig
-        if p["active_regions"]:
+        if self.params["active_regions"]:
             vmask = r.zone[:, bent].any(axis=1)
         else:
             vmask = np.ones(len(r.TV), dtype=bool)
         if not vmask.any():
-            self._key, self._cache = key, None
             return None
         tet = np.flatnonzero(vmask[r.T].any(axis=1))
         edge = np.flatnonzero(vmask[r.E].any(axis=1))
         vert = np.flatnonzero(vmask)
         w = np.where(vmask, self.w_all, 0.0)       # zone borders are pinned to stage 1
-        self._corr[~vmask] = 0.0
         one = lambda a: (np.ascontiguousarray(a, dtype=np.int64),
                          np.array([0, len(a)], dtype=np.int64))
-        if key[1]:
+        if coloured:
             sets = {STRETCH: _by_colour(edge, r.ecol), VOLUME: _by_colour(tet, r.tcol),
                     ENERGY: _by_colour(tet, r.tcol), BIND: one(vert)}
         else:
             sets = {STRETCH: one(edge), VOLUME: one(tet), ENERGY: one(tet), BIND: one(vert)}
-        self._key, self._cache = key, (sets, w, vmask)
-        return self._cache
+        # per vertex, the largest zone membership of each joint (for the fade band)
+        return sets, w, vmask, np.ascontiguousarray(r.zone[vert][:, bent], dtype=np.float64)
 
     def __call__(self, fr: Frame) -> None:
         p = self.params
@@ -171,7 +176,7 @@ class PBD(Stage):
         if act is None or p["iterations"] <= 0:
             fr.counts["active_tets"] = 0
             return
-        sets, w, vmask = act
+        sets, w, vmask, vzone = act
         r = self.rig
         X = fr.tet
         xpbd = p["solver"] == "xpbd"
@@ -194,7 +199,6 @@ class PBD(Stage):
         verts = sets[BIND][0]
         if p["warm_start"]:
             _carry(X, verts, fr.M, self._dom, self._corr, True)
-        both = VOLUME in kinds and ENERGY in kinds
         for it in range(1, int(p["iterations"]) + 1):
             for kind in kinds:
                 idx, bounds = sets[kind]
@@ -202,14 +206,6 @@ class PBD(Stage):
                 # (a uniform k cancels out of C / |grad C|^2 otherwise).
                 k = k_of[kind] if (not xpbd or kind == ENERGY) else 1.0
                 alpha = a_of[kind] if xpbd else 0.0
-                if both and kind == ENERGY:
-                    continue
-                if both and kind == VOLUME:
-                    solver.sweep(solver.TETS, X, w, self.mass, r.E, r.T, ks, r.bseg, fr.seg_A,
-                                 fr.seg_B, r.vol0, r.erest, self.lam[VOLUME], idx, bounds, k,
-                                 alpha, threads, self.lam[ENERGY], k_of[ENERGY],
-                                 a_of[ENERGY] if xpbd else 0.0)
-                    continue
                 solver.sweep(kind, X, w, self.mass, r.E, r.T, ks, r.bseg, fr.seg_A, fr.seg_B,
                              r.len0 if kind == STRETCH else r.vol0 if kind == VOLUME
                              else r.brest, r.erest, self.lam[kind], idx, bounds, k, alpha, threads)
@@ -231,7 +227,7 @@ class PBD(Stage):
         f = fr.fade
         if p["active_regions"] and np.any((f > 0) & (f < 1)):
             # Joints still in their fade band pass on only part of the correction.
-            zf = (self.rig.zone[verts][:, fr.bent] * f[fr.bent]).max(axis=1)
+            zf = (vzone * f[fr.bent]).max(axis=1)
             X[verts] = fr.tet_base[verts] + zf[:, None] * (X[verts] - fr.tet_base[verts])
         solver.embed_update(fr.surface_base, X, fr.tet_base, r.Etet, r.Ebary, fr.surface)
 
