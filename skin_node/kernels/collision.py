@@ -6,6 +6,8 @@ import math
 import numba as nb
 import numpy as np
 
+from .solver import FAST
+
 
 _OFFSETS = np.array(sorted(((a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)),
                           key=lambda o: abs(o[0]) + abs(o[1]) + abs(o[2])), dtype=np.int64)
@@ -83,7 +85,7 @@ def _seg_dist(px, py, pz, A, B):
     return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, fastmath=FAST)
 def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, rest_sep,
                      rest_tol, cell):
     """The paper's sign test for skin passing through skin, made unambiguous.
@@ -120,23 +122,23 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, 
     while size < 2 * nt:
         size *= 2
     h = cell
-    counts = np.zeros(size + 1, dtype=np.int64)
+    # One hash table per side (keys side * size + cell hash): a vertex walks only
+    # the other side's triangles.
+    counts = np.zeros(2 * size + 1, dtype=np.int64)
     keys = np.empty(nt, dtype=np.int64)
     for a in range(nt):
         gx, gy, gz, _, _, _ = _plane(X, F, tris[a])
-        k = _cell_hash(int(math.floor(gx / h)), int(math.floor(gy / h)),
-                       int(math.floor(gz / h)), size)
+        k = tside[a] * size + _cell_hash(int(math.floor(gx / h)), int(math.floor(gy / h)),
+                                         int(math.floor(gz / h)), size)
         keys[a] = k
         counts[k + 1] += 1
-    for k in range(size):
+    for k in range(2 * size):
         counts[k + 1] += counts[k]
     fill = counts[:-1].copy()
     items = np.empty(nt, dtype=np.int64)
-    iside = np.empty(nt, dtype=np.int64)
     inorm = np.empty((nt, 3))
     for a in range(nt):
         items[fill[keys[a]]] = tris[a]
-        iside[fill[keys[a]]] = tside[a]
         inorm[fill[keys[a]]] = tnorm[a]
         fill[keys[a]] += 1
     # Per item: centre now, bounding radius, centre at rest (so the pair loop
@@ -152,7 +154,8 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, 
         g0, g1, g2, _, _, _ = _plane(X0, F, f)
         geo[b, 0], geo[b, 1], geo[b, 2], geo[b, 3] = gx, gy, gz, math.sqrt(rr)
         geo[b, 4], geo[b, 5], geo[b, 6] = g0, g1, g2
-    for a in nb.prange(nv):
+    sep2 = rest_sep * rest_sep
+    for a in range(nv):
         i = verts[a]
         o = 1 - vside[a]
         px, py, pz = X[i, 0], X[i, 1], X[i, 2]
@@ -161,21 +164,21 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, 
             continue
         ix, iy, iz = int(math.floor(px / h)), int(math.floor(py / h)), int(math.floor(pz / h))
         best, best_d, best_in, best_b = -1, h * h, False, -1
+        reach = h                                  # sqrt(best_d)
         for c27 in range(27):
             # the vertex's own cell first: an early near hit lets the bounding-sphere
             # test reject most triangles of the other cells
             dx, dy, dz = _OFFSETS[c27, 0], _OFFSETS[c27, 1], _OFFSETS[c27, 2]
-            k = _cell_hash(ix + dx, iy + dy, iz + dz, size)
+            k = o * size + _cell_hash(ix + dx, iy + dy, iz + dz, size)
             for b in range(counts[k], counts[k + 1]):
-                if iside[b] != o:
-                    continue
-                cd = math.sqrt((px - geo[b, 0]) ** 2 + (py - geo[b, 1]) ** 2
-                               + (pz - geo[b, 2]) ** 2) - geo[b, 3]
-                if cd > 0.0 and cd * cd > best_d:
+                # bounding sphere: skip unless |p - g| < r_b + reach (no sqrt)
+                lim = geo[b, 3] + reach
+                cd = (px - geo[b, 0]) ** 2 + (py - geo[b, 1]) ** 2 + (pz - geo[b, 2]) ** 2
+                if cd > lim * lim:
                     continue
                 rd = ((X0[i, 0] - geo[b, 4]) ** 2 + (X0[i, 1] - geo[b, 5]) ** 2
                       + (X0[i, 2] - geo[b, 6]) ** 2)
-                if rd < rest_sep * rest_sep:
+                if rd < sep2:
                     continue
                 f = items[b]
                 a0, a1, a2 = F[f, 0], F[f, 1], F[f, 2]
@@ -187,6 +190,7 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, 
                 d = (px - qx) ** 2 + (py - qy) ** 2 + (pz - qz) ** 2
                 if d < best_d:
                     best, best_d, best_in, best_b = f, d, inside, b
+                    reach = math.sqrt(d)
         if best < 0:
             # deep in the other side's flesh: near its bone, away from the joint
             # (segA[1] is the joint, where both bones start and the flesh is shared)
@@ -222,3 +226,68 @@ def near_points(X, verts, P, r):
                 n += 1
                 break
     return out[:n]
+
+
+@nb.njit(cache=True)
+def carried_normals(M, tri_bone, tri_normal, tris, out):
+    """``out[a] = R(tri_bone[t]) n0[t]`` for ``t = tris[a]``: rest normals carried
+    by each triangle's bone."""
+    for a in range(tris.shape[0]):
+        t = tris[a]
+        b = tri_bone[t]
+        for r in range(3):
+            out[a, r] = (M[b, r, 0] * tri_normal[t, 0] + M[b, r, 1] * tri_normal[t, 1]
+                         + M[b, r, 2] * tri_normal[t, 2])
+    return out
+
+
+@nb.njit(cache=True)
+def halfspace_project(X, verts, vside, crossed, segA, segB, R, c, n, eps, halfspace, moved):
+    """Project onto the plane ``(c, n)``, ``eps`` to their own side (child side +n),
+    the region vertices flagged ``crossed`` and, with ``halfspace``, every one on
+    the wrong side of it within the other side's flesh radius of its bone.
+    Writes the moved vertex ids into ``moved``; returns how many."""
+    k = 0
+    for a in range(verts.shape[0]):
+        i = verts[a]
+        sgn = 2.0 * vside[a] - 1.0
+        dist = (X[i, 0] - c[0]) * n[0] + (X[i, 1] - c[1]) * n[1] + (X[i, 2] - c[2]) * n[2]
+        move = crossed[a]
+        if not move and halfspace and sgn * dist < eps:
+            o = 1 - vside[a]
+            move = _seg_dist(X[i, 0], X[i, 1], X[i, 2], segA[o], segB[o]) < R[o]
+        if move:
+            f = dist - sgn * eps
+            X[i, 0] -= f * n[0]
+            X[i, 1] -= f * n[1]
+            X[i, 2] -= f * n[2]
+            moved[k] = i
+            k += 1
+    return k
+
+
+@nb.njit(cache=True)
+def ring_positions(ids, ptr, nbr, pos, mark):
+    """Positions (``pos[v]``, -1 outside the region) of ``ids`` and their one-ring
+    neighbours, each once, sorted; ``mark`` (n,) bool scratch, left all False."""
+    out = np.empty(ids.shape[0] * 16 + 16, dtype=np.int64)
+    k = 0
+    for a in range(ids.shape[0]):
+        i = ids[a]
+        for q in range(-1, ptr[i + 1] - ptr[i]):
+            v = i if q < 0 else nbr[ptr[i] + q]
+            if pos[v] >= 0 and not mark[v]:
+                mark[v] = True
+                if k == out.shape[0]:
+                    grown = np.empty(2 * k, dtype=np.int64)
+                    grown[:k] = out
+                    out = grown
+                out[k] = pos[v]
+                k += 1
+    res = np.sort(out[:k])
+    for a in range(ids.shape[0]):
+        i = ids[a]
+        mark[i] = False
+        for q in range(ptr[i], ptr[i + 1]):
+            mark[nbr[q]] = False
+    return res

@@ -136,7 +136,7 @@ def sweep(kind: int, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds
 
 
 # --------------------------------------------------------------------------- skinning
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=True, fastmath=FAST)
 def lbs(V, Widx, Wval, M, out):
     """Linear blend skinning ``v' = sum_j w_j M_j v`` with sparse weights.
 
@@ -158,7 +158,7 @@ def lbs(V, Widx, Wval, M, out):
         out[i, 0], out[i, 1], out[i, 2] = ox, oy, oz
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=True, fastmath=FAST)
 def dqs(V, Widx, Wval, Q, out):
     """Dual-quaternion skinning (Kavan et al. 2007) with sparse weights.
 
@@ -205,7 +205,7 @@ def dqs(V, Widx, Wval, Q, out):
         out[i, 0], out[i, 1], out[i, 2] = rx + px, ry + py, rz + pz
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=True, fastmath=FAST)
 def embed_update(base, X, Xbase, Etet, Ebary, out):
     """Surface = its own stage-1 result plus the barycentric interpolation of
     the tet mesh's correction: ``out_i = base_i + sum_a b_ia (X - Xbase)[t_ia]``.
@@ -220,7 +220,7 @@ def embed_update(base, X, Xbase, Etet, Ebary, out):
             out[i, d] = s
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, fastmath=FAST)
 def laplacian_smooth(X, verts, ptr, nbr, k, iterations, buf):
     """Jacobi Laplacian smoothing of ``verts`` only, in place:
     ``p <- (1-k) p + k mean(one ring)``, ``iterations`` times.

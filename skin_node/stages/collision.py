@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels.collision import crossed_vertices, near_points
+from ..kernels.collision import (carried_normals, crossed_vertices, halfspace_project,
+                                 near_points, ring_positions)
 from ..rigging.weights import point_segment_distance
 from .base import Frame, Stage
 
@@ -73,14 +74,21 @@ class JointRegions:
         B = np.einsum("sij,sj->si", Ms[:, :3, :3], B) + Ms[:, :3, 3]
         return A, B
 
+    def posed(self, j: int, M: np.ndarray):
+        """Joint ``j``'s posed bone segments and its triangles' carried normals:
+        what :meth:`crossed` needs of a pose (one call serves every pass)."""
+        t = self.tris[j]
+        tn = carried_normals(M, self.tri_bone, self.tri_normal, t, np.empty((len(t), 3)))
+        return self.posed_segments(j, M) + (tn,)
+
     def crossed(self, X: np.ndarray, X0: np.ndarray, F: np.ndarray, M: np.ndarray,
-                j: int, sub: np.ndarray | None = None) -> np.ndarray:
+                j: int, sub: np.ndarray | None = None, posed=None) -> np.ndarray:
         """Per vertex of ``verts[j]`` (or of its subset ``sub``, positions into
-        ``verts[j]``): the crossed triangle, -2 deep inside, -1 not crossed."""
-        A, B = self.posed_segments(j, M)
+        ``verts[j]``): the crossed triangle, -2 deep inside, -1 not crossed.
+        ``posed``: :meth:`posed` of ``(j, M)``, if already at hand."""
+        A, B, tn = self.posed(j, M) if posed is None else posed
         rad = self.radius[j]
         t = self.tris[j]
-        tn = np.einsum("tij,tj->ti", M[self.tri_bone[t], :3, :3], self.tri_normal[t])
         v, side = self.verts[j], self.vside[j]
         if sub is not None:
             v, side = v[sub], side[sub]
@@ -96,22 +104,8 @@ class JointRegions:
             pos = -np.ones(self._n, dtype=np.int64)
             pos[self.verts[j]] = np.arange(len(self.verts[j]))
             self._pos[j] = pos
-        pos = self._pos[j]
-        ids = self.verts[j][sub]
-        nb = np.concatenate([self._adj[self._ptr[i]:self._ptr[i + 1]] for i in ids] + [ids])
-        p = pos[nb]
-        return np.unique(p[p >= 0])
-
-    def in_other(self, X: np.ndarray, M: np.ndarray, j: int) -> np.ndarray:
-        """Per vertex of ``verts[j]``: within the other side's flesh radius of its bone."""
-        A, B = self.posed_segments(j, M)
-        v, side = self.verts[j], self.vside[j]
-        out = np.zeros(len(v), dtype=bool)
-        for s_ in (0, 1):
-            m = side == 1 - s_
-            d = point_segment_distance(X[v[m]], A[s_:s_ + 1], B[s_:s_ + 1])[:, 0]
-            out[m] = d < self.R[j, s_]
-        return out
+            self._mark = np.zeros(self._n, dtype=np.bool_)
+        return ring_positions(self.verts[j][sub], self._ptr, self._adj, self._pos[j], self._mark)
 
     def active(self, bent: np.ndarray):
         """Joints of the bent joints' regions (cached per set of bent joints)."""
@@ -174,21 +168,21 @@ class Collision(Stage):
             n = -n
         return pj, n
 
-    def _halfspace(self, X, fr: Frame, j: int, plane, crossed, eps: float) -> int:
+    def _halfspace(self, X, fr: Frame, j: int, plane, crossed, eps: float, posed) -> int:
         """Project the crossed vertices of joint ``j``'s region onto the plane, each
         ``eps`` to its own side; with ``collision_halfspace`` (past the paper) also
         every vertex of the interpenetration zone on the wrong side of it."""
         regs = self.regions
-        v, sgn = regs.verts[j], 2.0 * regs.vside[j] - 1.0
+        v = regs.verts[j]
         pj, n = plane
-        move = np.zeros(len(v), dtype=bool) if crossed is None else crossed.copy()
-        if self.params["collision_halfspace"]:
-            dist = (X[v] - pj) @ n
-            move |= (sgn * dist < eps) & regs.in_other(X, fr.M, j)
-        dist = (X[v[move]] - pj) @ n
-        X[v[move]] -= (dist - sgn[move] * eps)[:, None] * n[None, :]
-        fr.touched.append(v[move])
-        return int(move.sum())
+        if crossed is None:
+            crossed = np.zeros(len(v), dtype=np.bool_)
+        moved = np.empty(len(v), dtype=np.int64)
+        k = halfspace_project(X, v, regs.vside[j], crossed, posed[0], posed[1], regs.R[j],
+                              np.ascontiguousarray(pj), np.ascontiguousarray(n), eps,
+                              bool(self.params["collision_halfspace"]), moved)
+        fr.touched.append(moved[:k])
+        return k
 
     def __call__(self, fr: Frame) -> None:
         if not self.params["self_collision"]:
@@ -214,17 +208,18 @@ class Collision(Stage):
             self.params["collision_halfspace"]
         for j in list(joints) + siblings:
             plane, planar = None, j in joints
+            posed = regs.posed(j, fr.M)
             if upfront and planar:
                 # The bisector does not depend on where the skin crossed, so the
                 # half-space projection needs no detection pass before it.
                 plane = self._plane_normal(fr, j, fr.G[j, :3, 3])
                 if plane is not None:
-                    projected += self._halfspace(X, fr, j, plane, None, eps)
+                    projected += self._halfspace(X, fr, j, plane, None, eps, posed)
             sub = None
             for _ in range(int(self.params["collision_passes"])):
                 # After a push-out only the pushed vertices and their neighbours can
                 # still cross: later passes check just those.
-                hit = regs.crossed(X, self.V0, self.F, fr.M, j, sub)
+                hit = regs.crossed(X, self.V0, self.F, fr.M, j, sub, posed)
                 crossed = hit != -1
                 if not crossed.any():
                     break
@@ -239,7 +234,7 @@ class Collision(Stage):
                     far = idx[np.argmax(np.linalg.norm(X[idx] - pj, axis=1))]
                     plane = self._plane_normal(fr, j, X[far])
                     if plane is not None:
-                        projected += self._halfspace(X, fr, j, plane, crossed, eps)
+                        projected += self._halfspace(X, fr, j, plane, crossed, eps, posed)
                         sub = None
                         continue
                 if not self.params["collision_pushout"]:
@@ -265,7 +260,7 @@ class Collision(Stage):
                 # A pushed vertex drags its triangles over the skin facing it, which
                 # is not in its one ring: recheck everything near it too.
                 near = near_points(X, regs.verts[j], X[regs.verts[j][where]],
-                                   2.0 * regs.emax)
+                                   2.0 * regs.edge)
                 sub = np.union1d(regs.ring(j, where), near)
         fr.counts["projected"] = projected
         fr.counts["pushed"] = pushed
