@@ -225,18 +225,31 @@ def laplacian_smooth(X, verts, ptr, nbr, k, iterations, buf):
     """Jacobi Laplacian smoothing of ``verts`` only, in place:
     ``p <- (1-k) p + k mean(one ring)``, ``iterations`` times.
 
-    ``ptr``/``nbr`` is the one-ring adjacency in CSR form; ``buf`` (n,3) scratch.
-    Vertices outside ``verts`` are read but never moved."""
+    ``ptr``/``nbr`` is the one-ring adjacency in CSR form; ``buf``
+    (len(verts), 3) scratch. Vertices outside ``verts`` are read but never moved."""
     for _ in range(iterations):
         for a in range(verts.shape[0]):
             i = verts[a]
             lo, hi = ptr[i], ptr[i + 1]
-            for d in range(3):
-                s = 0.0
-                for b in range(lo, hi):
-                    s += X[nbr[b], d]
-                buf[i, d] = (1.0 - k) * X[i, d] + k * s / max(hi - lo, 1)
+            sx = sy = sz = 0.0
+            for b in range(lo, hi):
+                q = nbr[b]
+                sx += X[q, 0]
+                sy += X[q, 1]
+                sz += X[q, 2]
+            c = k / max(hi - lo, 1)
+            buf[a, 0] = (1.0 - k) * X[i, 0] + c * sx
+            buf[a, 1] = (1.0 - k) * X[i, 1] + c * sy
+            buf[a, 2] = (1.0 - k) * X[i, 2] + c * sz
         for a in range(verts.shape[0]):
             i = verts[a]
-            for d in range(3):
-                X[i, d] = buf[i, d]
+            X[i, 0], X[i, 1], X[i, 2] = buf[a, 0], buf[a, 1], buf[a, 2]
+
+
+@nb.njit(cache=True, fastmath=FAST)
+def add_rows(out, base, d, verts):
+    """``out[i] = base[i] + d[i]`` for ``i`` in ``verts``."""
+    for a in range(verts.shape[0]):
+        i = verts[a]
+        for c in range(3):
+            out[i, c] = base[i, c] + d[i, c]

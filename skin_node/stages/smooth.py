@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels.solver import laplacian_smooth
-from .base import Frame, Stage
+from ..kernels.solver import add_rows, laplacian_smooth
+from .base import Frame, KeyedCache, Stage
 
 
 class Smooth(Stage):
@@ -27,21 +27,18 @@ class Smooth(Stage):
         self.region = r.region
         # surface vertices whose tet touches each joint's zone
         self.szone = r.zone[r.Etet].any(axis=1)
-        self._key, self._verts = None, None
+        self._sets = KeyedCache()
         self._buf = np.empty_like(character.V)
         self._d = np.zeros_like(character.V)
 
     def verts(self, bent: np.ndarray, mode: str) -> np.ndarray:
-        key = (bent.tobytes(), mode)
-        if key != self._key:
+        def make():
             js = np.flatnonzero(bent)
-            self._key = key
             if mode == "position":
-                self._verts = np.flatnonzero(np.isin(self.region, js)).astype(np.int64)
-            else:
-                mask = self.szone[:, js].any(axis=1) | np.isin(self.region, js)
-                self._verts = np.flatnonzero(mask).astype(np.int64)
-        return self._verts
+                return np.flatnonzero(np.isin(self.region, js)).astype(np.int64)
+            mask = self.szone[:, js].any(axis=1) | np.isin(self.region, js)
+            return np.flatnonzero(mask).astype(np.int64)
+        return self._sets.get((bent.tobytes(), mode), make)
 
     def __call__(self, fr: Frame) -> None:
         k = float(self.params["smoothing"])
@@ -57,4 +54,4 @@ class Smooth(Stage):
             d = self._d
             np.subtract(fr.surface, fr.surface_base, out=d)
             laplacian_smooth(d, vs, self.ptr, self.adj, kf, n, self._buf)
-            fr.surface[vs] = fr.surface_base[vs] + d[vs]
+            add_rows(fr.surface, fr.surface_base, d, vs)

@@ -161,6 +161,43 @@ def ring_distance(sources, ptr, nbr, hops, limit, queue):
     return n
 
 
+@nb.njit(cache=True)
+def restore_region(X, F, tris, c, verts, mob, side, fade, A, B, R, hops, ring_width, vol0,
+                   max_move, g, m, passes):
+    """Give joint region ``tris`` its rest volume ``vol0`` back (cone from the
+    posed joint centre ``c``), moving ``verts`` along their normals by at most
+    ``max_move``. Mobility: ``mob * fade``, times a ramp from 0 within the other
+    side's flesh radius ``R`` of its bone (``A``-``B``) to 1 at 1.5 ``R``, times
+    ``min(1, hops / ring_width)`` (rings from skin in contact). Returns the
+    region's volume ratio after the ``passes`` projections."""
+    mmax = 0.0
+    for a in range(verts.shape[0]):
+        i, o = verts[a], 1 - side[a]
+        d = _seg_dist3(X[i, 0], X[i, 1], X[i, 2], A[o], B[o])
+        ramp = min(1.0, max(0.0, (d / max(R[o], 1e-9) - 1.0) / 0.5))
+        m[a] = mob[a] * fade * ramp * min(1.0, hops[i] / ring_width)
+        mmax = max(mmax, m[a])
+    if mmax <= 0.0 or vol0 == 0.0:
+        return region_volume_gradient(X, F, tris, c[0], c[1], c[2], g) / vol0 if vol0 else 1.0
+    budget = max_move / mmax
+    for _ in range(passes):
+        vol = region_volume_gradient(X, F, tris, c[0], c[1], c[2], g)
+        budget -= abs(move_along_normals(X, verts, m, g, vol - vol0, budget))
+    return region_volume_gradient(X, F, tris, c[0], c[1], c[2], g) / vol0
+
+
+@nb.njit(cache=True, inline="always")
+def _seg_dist3(px, py, pz, A, B):
+    ex, ey, ez = B[0] - A[0], B[1] - A[1], B[2] - A[2]
+    qx, qy, qz = px - A[0], py - A[1], pz - A[2]
+    ee = ex * ex + ey * ey + ez * ez
+    t = 0.0
+    if ee > 0.0:
+        t = min(1.0, max(0.0, (qx * ex + qy * ey + qz * ez) / ee))
+    dx, dy, dz = qx - t * ex, qy - t * ey, qz - t * ez
+    return math.sqrt(dx * dx + dy * dy + dz * dz)
+
+
 class Volume(Stage):
     """Volume constraints on the surface: one per bent joint's region, or one
     for the whole mesh (``volume_regions``)."""
@@ -210,6 +247,7 @@ class Volume(Stage):
         self._queue = np.empty(len(character.V), dtype=np.int64)
         self._ptr, self._adj = r.adj_ptr, r.adj
         self._g = np.zeros((len(character.V), 3))
+        self._m = np.zeros(len(character.V))
         # vertex -> incident faces, CSR
         F = character.F
         order = np.argsort(F.ravel(), kind="stable")
@@ -244,26 +282,18 @@ class Volume(Stage):
             reached = ring_distance(src, self._ptr, self._adj, hops, self._hop_limit, self._queue)
         worst = 1.0
         cap = float(self.params["volume_max_bulge"])
+        regs = self.regions
         for j in js:
             v = self.rverts[j]
             if not len(v):
                 continue
-            m = np.zeros(len(v))
-            _mobility(X, self.rmob[j], v, np.full(len(v), j), np.arange(len(v)), self.rside[j],
-                      fr.fade, A, B, self.regions.R, m)
-            if reached:
-                m *= np.minimum(hops[v] / self._ring_width[j], 1.0)
-            c = fr.G[j, :3, 3]
-            t = self.regions.tris[j]
             # No vertex moves farther than volume_max_bulge limb radii: past that a
             # deep fold's lost volume is not worth a balloon (the cones of a region
             # folded past ~120 degrees overlap, and no skin can make that up).
-            budget = cap * self.regions.radius[j] / max(float(m.max(initial=0.0)), 1e-12)
-            for _ in range(2):
-                vol = region_volume_gradient(X, self.F, t, c[0], c[1], c[2], self._g)
-                budget -= abs(move_along_normals(X, v, m, self._g, vol - self.rvol0[j], budget))
-            worst = min(worst, region_volume_gradient(X, self.F, t, c[0], c[1], c[2], self._g)
-                        / self.rvol0[j])
+            worst = min(worst, restore_region(
+                X, self.F, regs.tris[j], fr.G[j, :3, 3], v, self.rmob[j], self.rside[j],
+                fr.fade[j], A[j], B[j], regs.R[j], hops, self._ring_width[j], self.rvol0[j],
+                cap * regs.radius[j], self._g, self._m, 2))
         if reached:
             hops[self._queue[:reached]] = self._hop_limit
         fr.counts["region_volume_min"] = worst
