@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from .skeleton import forward_kinematics
 from .stages.base import Frame, Stage
 from .stages.collision import Collision
 from .stages.pbd import CONSTRAINTS, PBD
@@ -183,6 +184,7 @@ class Pipeline:
         self.stages: list[Stage] = [STAGES[s](character, self.params) for s in stages]
         skel = character.skeleton
         self._seg_joint, self._segA, self._segB = skel.bone_segments()
+        self._parents = np.asarray(skel.parents, dtype=np.int64)
         n, k = len(character.V), len(character.rig.TV)
         self._buf = [np.empty((n, 3)), np.empty((k, 3)), np.empty((n, 3)), np.empty((k, 3))]
         self.timings: dict = {}
@@ -216,9 +218,10 @@ class Pipeline:
                              f"channels {skel.channel_names[:4]}...")
         if not np.all(np.isfinite(q)):
             raise ValueError("pose contains NaN or Inf")
-        G = skel.world_matrices(q)
-        M = G @ skel.bind_inv
-        angles = skel.joint_angles(q)
+        J = skel.n_joints
+        G, M, angles = np.empty((J, 4, 4)), np.empty((J, 4, 4)), np.empty(J)
+        forward_kinematics(q, self._parents, skel.offsets, skel.rest_rotations, skel.bind_inv,
+                           G, M, angles)
         fade = np.clip((angles - self.params["active_threshold"]) / self.params["active_fade"],
                        0.0, 1.0)
         fade[skel.parents < 0] = 0.0

@@ -205,13 +205,14 @@ def dqs(V, Widx, Wval, Q, out):
         out[i, 0], out[i, 1], out[i, 2] = rx + px, ry + py, rz + pz
 
 
-@nb.njit(cache=True, parallel=True, fastmath=FAST)
-def embed_update(base, X, Xbase, Etet, Ebary, out):
+@nb.njit(cache=True, fastmath=FAST)
+def embed_update(base, X, Xbase, Etet, Ebary, verts, out):
     """Surface = its own stage-1 result plus the barycentric interpolation of
-    the tet mesh's correction: ``out_i = base_i + sum_a b_ia (X - Xbase)[t_ia]``.
+    the tet mesh's correction: ``out_i = base_i + sum_a b_ia (X - Xbase)[t_ia]``
+    for ``i`` in ``verts`` (the vertices embedded in tets the solve touched).
     Surface detail finer than the tets is therefore kept."""
-    n = base.shape[0]
-    for i in nb.prange(n):
+    for k in range(verts.shape[0]):
+        i = verts[k]
         for d in range(3):
             s = base[i, d]
             for a in range(4):

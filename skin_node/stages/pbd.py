@@ -168,7 +168,10 @@ class PBD(Stage):
         else:
             sets = {STRETCH: one(edge), VOLUME: one(tet), ENERGY: one(tet), BIND: one(vert)}
         # per vertex, the largest zone membership of each joint (for the fade band)
-        return sets, w, vmask, np.ascontiguousarray(r.zone[vert][:, bent], dtype=np.float64)
+        vzone = np.ascontiguousarray(r.zone[vert][:, bent], dtype=np.float64)
+        # the surface vertices embedded in a tet with a simulated vertex
+        sverts = np.flatnonzero(vmask[r.Etet].any(axis=1)).astype(np.int64)
+        return sets, w, vmask, vzone, sverts
 
     def __call__(self, fr: Frame) -> None:
         p = self.params
@@ -176,7 +179,7 @@ class PBD(Stage):
         if act is None or p["iterations"] <= 0:
             fr.counts["active_tets"] = 0
             return
-        sets, w, vmask, vzone = act
+        sets, w, vmask, vzone, sverts = act
         r = self.rig
         X = fr.tet
         xpbd = p["solver"] == "xpbd"
@@ -191,7 +194,8 @@ class PBD(Stage):
         threads = int(p["threads"])
         ks = np.full(4, p["stiffness"])
         for kind in kinds:
-            self.lam[kind][:] = 0.0
+            if xpbd and a_of[kind] > 0.0:      # multipliers only matter with compliance
+                self.lam[kind][:] = 0.0
         fr.counts["contacts"] = 0 if contacts is None else len(contacts[0])
         tol = p["tolerance"]
         it = 0
@@ -229,7 +233,7 @@ class PBD(Stage):
             # Joints still in their fade band pass on only part of the correction.
             zf = (vzone * f[fr.bent]).max(axis=1)
             X[verts] = fr.tet_base[verts] + zf[:, None] * (X[verts] - fr.tet_base[verts])
-        solver.embed_update(fr.surface_base, X, fr.tet_base, r.Etet, r.Ebary, fr.surface)
+        solver.embed_update(fr.surface_base, X, fr.tet_base, r.Etet, r.Ebary, sverts, fr.surface)
 
 
 @nb.njit(cache=True)
