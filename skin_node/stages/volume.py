@@ -114,13 +114,14 @@ def region_volume_gradient(X, F, tris, cx, cy, cz, g):
 def move_along_normals(X, verts, m, g, C, budget):
     """Project ``C = 0`` to first order by moving ``verts`` along their unit
     normals ``g / |g|`` by ``lam * m_i``; ``dV = sum g . dp = lam sum m |g|``.
-    ``|lam|`` is clipped to ``budget``; returns the ``lam`` applied."""
+    ``|lam|`` is clipped to ``budget``; returns the ``lam`` applied and the
+    first-order volume change ``lam sum m |g|``."""
     den = 0.0
     for a in range(verts.shape[0]):
         i = verts[a]
         den += m[a] * math.sqrt(g[i, 0] ** 2 + g[i, 1] ** 2 + g[i, 2] ** 2)
     if den <= 1e-30:
-        return 0.0
+        return 0.0, 0.0
     lam = min(max(-C / den, -budget), budget)
     for a in range(verts.shape[0]):
         i = verts[a]
@@ -130,7 +131,7 @@ def move_along_normals(X, verts, m, g, C, budget):
             X[i, 0] += f * g[i, 0]
             X[i, 1] += f * g[i, 1]
             X[i, 2] += f * g[i, 2]
-    return lam
+    return lam, lam * den
 
 
 @nb.njit(cache=True)
@@ -169,7 +170,7 @@ def restore_region(X, F, tris, c, verts, mob, side, fade, A, B, R, hops, ring_wi
     ``max_move``. Mobility: ``mob * fade``, times a ramp from 0 within the other
     side's flesh radius ``R`` of its bone (``A``-``B``) to 1 at 1.5 ``R``, times
     ``min(1, hops / ring_width)`` (rings from skin in contact). Returns the
-    region's volume ratio after the ``passes`` projections."""
+    region's volume ratio after the ``passes`` projections, to first order."""
     mmax = 0.0
     for a in range(verts.shape[0]):
         i, o = verts[a], 1 - side[a]
@@ -177,13 +178,18 @@ def restore_region(X, F, tris, c, verts, mob, side, fade, A, B, R, hops, ring_wi
         ramp = min(1.0, max(0.0, (d / max(R[o], 1e-9) - 1.0) / 0.5))
         m[a] = mob[a] * fade * ramp * min(1.0, hops[i] / ring_width)
         mmax = max(mmax, m[a])
-    if mmax <= 0.0 or vol0 == 0.0:
-        return region_volume_gradient(X, F, tris, c[0], c[1], c[2], g) / vol0 if vol0 else 1.0
-    budget = max_move / mmax
+    if vol0 == 0.0:
+        return 1.0
+    budget = max_move / max(mmax, 1e-30)
+    vol = vol0
     for _ in range(passes):
         vol = region_volume_gradient(X, F, tris, c[0], c[1], c[2], g)
-        budget -= abs(move_along_normals(X, verts, m, g, vol - vol0, budget))
-    return region_volume_gradient(X, F, tris, c[0], c[1], c[2], g) / vol0
+        if mmax <= 0.0:
+            break
+        lam, dv = move_along_normals(X, verts, m, g, vol - vol0, budget)
+        budget -= abs(lam)
+        vol += dv
+    return vol / vol0
 
 
 @nb.njit(cache=True, inline="always")
