@@ -30,13 +30,14 @@ from pathlib import Path
 import numpy as np
 
 from . import charts
+from ..pipeline import STAGE_NAMES
 from .measure import (Progress, expand_methods, expand_scenes, load_scene, make_motion,
                       memory_profile, parse_method, run_method)
 
 DEFAULT_PIPELINES = "lbs,dqs,pbs,paper,default"
 DEFAULT_CLIPS = {"arm": ["elbow_bend", "wrist_twist"], "humanoid": ["walk", "squat"]}
-#: The clip a scene's row of the markdown table is taken from.
-TABLE_CLIP = {"arm": "elbow_bend", "humanoid": "squat"}
+#: The clips of each character the report's table shows.
+TABLE_CLIPS = {"arm": ("elbow_bend",), "humanoid": ("walk", "squat")}
 
 
 # ------------------------------------------------------------------- helpers
@@ -167,29 +168,42 @@ def draw_run_charts(result: dict, out: Path) -> list:
 
 
 # ------------------------------------------------------------------- markdown
-def markdown_table(runs: list) -> str:
-    """Method x scene on each scene's table clip (elbow_bend on the arm, squat on
-    the humanoid; else the first clip run)."""
-    rows, seen = [], set()
-    for s in runs:
-        key = (s["method"], s["scene"])
-        if key in seen or s["motion"] in ("elbow_sweep", "twist_sweep"):
-            continue
-        want = TABLE_CLIP.get(s["scene"].split(":")[0])
-        cand = [r for r in runs if (r["method"], r["scene"]) == key and r["motion"] == want] or [s]
-        seen.add(key)
-        rows.append(cand[0])
+def markdown_table(runs: list, clips: dict | None = None) -> str:
+    """Method x scene x clip, pose sweeps left out; with ``clips`` (character ->
+    clip names, e.g. :data:`TABLE_CLIPS`) only those clips of those characters."""
+    clips = clips or {}
+    rows = [r for r in runs if r["motion"] not in ("elbow_sweep", "twist_sweep")
+            and r["motion"] in clips.get(r["scene"].split(":")[0], (r["motion"],))]
     f = lambda v, d=2: "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) \
         else f"{v:.{d}f}"  # noqa: E731
-    lines = ["| method | scene | clip | ms p50 / p90 | volume at deepest bend | "
-             "collapse / bulge (mm) | crossings (max) | distance to reference (mm, mean / max) |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = ["| method | scene | clip | ms p50 / p90 | volume at deepest bend | joint region "
+             "at deepest bend / worst error | collapse / bulge (mm) | crossings (max) | "
+             "distance to reference (mm, mean / max) |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for s in rows:
         lines.append(
             f"| {s['method']} | {s['scene']} | {s['motion']} ({f(s['deepest_angle_deg'], 0)} deg) | "
             f"{f(s['ms_total_p50'], 1)} / {f(s['ms_total_p90'], 1)} | "
-            f"{f(s['volume_ratio_deepest'], 3)} | {f(s['collapse_mm'], 1)} / {f(s['bulge_mm'], 1)} | "
+            f"{f(s['volume_ratio_deepest'], 3)} | {f(s['region_volume_ratio_deepest'], 3)} / "
+            f"{f(100 * s['region_volume_error_max'], 1)}% | "
+            f"{f(s['collapse_mm'], 1)} / {f(s['bulge_mm'], 1)} | "
             f"{f(s['crossings_max'], 0)} | {f(s['ref_mean_mm'], 2)} / {f(s['ref_max_mm'], 1)} |")
+    return "\n".join(lines)
+
+
+def stage_table(runs: list, method: str = "default") -> str:
+    """Median ms per stage of ``method`` on every scene and clip it ran."""
+    rows = [r for r in runs if r["method"] == method
+            and r["motion"] not in ("elbow_sweep", "twist_sweep")]
+    order = rows[0]["stages"].split("+") if rows else []
+    stages = ["fk"] + [k for k in order if k in STAGE_NAMES]
+    f = lambda v: "-" if v is None or not math.isfinite(v) else f"{v:.2f}"  # noqa: E731
+    lines = [f"| {method}: scene | clip | " + " | ".join(stages) + " | total p50 / p90 |",
+             "|---|---|" + "---|" * len(stages) + "---|"]
+    for r in rows:
+        lines.append(f"| {r['scene']} | {r['motion']} | "
+                     + " | ".join(f(r.get(f"ms_{k}_p50", float("nan"))) for k in stages)
+                     + f" | {f(r['ms_total_p50'])} / {f(r['ms_total_p90'])} |")
     return "\n".join(lines)
 
 
@@ -291,7 +305,9 @@ def report(out: Path, quick: bool = False, ros: bool = True, progress: bool = Tr
           f"({main['environment']['cpus']} cpus, load average "
           f"{main['environment'].get('load_average')}). ms = deform time per frame after a "
           "JIT warm-up; set-up and warm-up times are in runs.csv.", "",
-          markdown_table(main["runs"]), "",
+          markdown_table(main["runs"], TABLE_CLIPS), "",
+          "Median milliseconds per stage (fk = forward kinematics):", "",
+          stage_table(main["runs"]), "",
           "Stability (arm:2000): " + "; ".join(
               f"{m}: " + ", ".join(f"{r['case']} {'ok' if r['stable'] else '+'.join(r['failed'])}"
                                    for r in stab if r["method"] == m)
@@ -383,6 +399,8 @@ def main(argv: list | None = None) -> int:
                             a.ref_frames > 0, a.ref_frames, a.crossings_every, a.out,
                             not a.no_charts, prog)
             print(markdown_table(res["runs"]))
+            if any(r["method"] == "default" for r in res["runs"]):
+                print("\n" + stage_table(res["runs"]))
             print(f"\nwritten to {a.out}/")
         elif a.cmd == "stability":
             res = run_stability(_pipelines(a.pipelines), a.scene, a.long_frames, a.jitter_frames,
