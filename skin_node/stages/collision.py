@@ -6,7 +6,7 @@ import numpy as np
 from ..kernels.collision import (carried_normals, crossed_vertices, halfspace_project,
                                  near_points, ring_positions)
 from ..rigging.weights import point_segment_distance
-from .base import Frame, Stage
+from .base import Frame, KeyedCache, Stage
 
 
 class JointRegions:
@@ -144,6 +144,10 @@ class Collision(Stage):
         self.F, self.V0 = character.F, character.V
         self.regions = JointRegions(character)
         self.child = self.regions.child
+        r = character.rig
+        # surface vertices the solve can move, per joint: embedded in a tet of its zone
+        self._szone = r.zone[r.Etet].any(axis=1)
+        self._moved = KeyedCache()
 
     def _plane_normal(self, fr: Frame, j: int, q: np.ndarray):
         skel = self.character.skeleton
@@ -203,19 +207,29 @@ class Collision(Stage):
         near &= ~folded
         near[skel.parents < 0] = False
         siblings = [j for j in np.flatnonzero(near) if len(regs.verts[j])]
-        fr.counts["collision_joints"] = list(joints) + siblings
+        # The parent's region (the chest under lowered arms) is checked too, but only
+        # where the folding joints' solve moved its skin.
+        up = {int(skel.parents[j]) for j in joints} - set(int(j) for j in joints) - set(siblings)
+        parents = [j for j in sorted(up) if skel.parents[j] >= 0 and len(regs.verts[j])] \
+            if self.params["collision_parent"] else []
+        fr.counts["collision_joints"] = list(joints) + siblings + parents
         upfront = self.params["collision_plane"] == "bisector" and \
             self.params["collision_halfspace"]
-        for j in list(joints) + siblings:
+        for j in list(joints) + siblings + parents:
             plane, planar = None, j in joints
             posed = regs.posed(j, fr.M)
+            sub = None
+            if j in parents:
+                sub = self._moved.get((j, folded.tobytes()), lambda: np.flatnonzero(
+                    self._szone[regs.verts[j]][:, list(joints)].any(axis=1)))
+                if not len(sub):
+                    continue
             if upfront and planar:
                 # The bisector does not depend on where the skin crossed, so the
                 # half-space projection needs no detection pass before it.
                 plane = self._plane_normal(fr, j, fr.G[j, :3, 3])
                 if plane is not None:
                     projected += self._halfspace(X, fr, j, plane, None, eps, posed)
-            sub = None
             for _ in range(int(self.params["collision_passes"])):
                 # After a push-out only the pushed vertices and their neighbours can
                 # still cross: later passes check just those.
