@@ -136,11 +136,13 @@ class SkinNode(Node):
                                         **self._pipeline_kwargs)
         self._frame_id = p("frame_id")
         t_warm = time.perf_counter()
-        # Bent joints wake the solver and collision stages: compile them now, then
-        # settle back at rest, so the first real frame runs at full speed.
-        q_bent = np.concatenate([np.zeros(3),
-                                 self.character.skeleton.limits.mean(axis=-1).ravel()])
-        for q in (q_bent, np.zeros_like(q_bent)):
+        # Bent joints wake the solver and collision stages, and joints at their
+        # limits fold skin through skin (push-out, rechecks): compile all of it
+        # now, then settle back at rest, so the first real frame runs at full speed.
+        limits = self.character.skeleton.limits
+        q_bent = np.concatenate([np.zeros(3), limits.mean(axis=-1).ravel()])
+        q_far = np.concatenate([np.zeros(3), limits[..., 1].ravel()])
+        for q in (q_bent, q_far, np.zeros_like(q_bent)):
             if not np.all(np.isfinite(self._pipe.deform(q))):
                 raise ValueError(f"{p('character')}: warm-up pose deforms to non-finite vertices")
         warm_s = time.perf_counter() - t_warm

@@ -50,7 +50,7 @@ def matrix_to_euler_xyz(R: np.ndarray) -> np.ndarray:
     return np.stack([rx, ry, rz], axis=-1)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def forward_kinematics(q, parents, offsets, rest_rotations, bind_inv, G, M, angles):
     """World matrices ``G``, skinning matrices ``M = G inv(B)`` and each joint's
     pose rotation angle, in one pass over the joints (parents first)."""

@@ -13,13 +13,13 @@ _OFFSETS = np.array(sorted(((a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) fo
                           key=lambda o: abs(o[0]) + abs(o[1]) + abs(o[2])), dtype=np.int64)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _cell_hash(ix, iy, iz, size):
     h = (ix * 73856093) ^ (iy * 19349663) ^ (iz * 83492791)
     return h % size
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _closest_on_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
     """Closest point of triangle abc to p (Ericson, Real-Time Collision Detection 5.1.5)
     and whether it lies in the face's interior."""
@@ -58,7 +58,7 @@ def _closest_on_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
     return ax + abx * v + acx * w, ay + aby * v + acy * w, az + abz * v + acz * w, True
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _plane(X, F, f):
     a, b, c = F[f, 0], F[f, 1], F[f, 2]
     ux, uy, uz = X[b, 0] - X[a, 0], X[b, 1] - X[a, 1], X[b, 2] - X[a, 2]
@@ -73,7 +73,7 @@ def _plane(X, F, f):
     return gx, gy, gz, nx, ny, nz
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _seg_dist(px, py, pz, A, B):
     ex, ey, ez = B[0] - A[0], B[1] - A[1], B[2] - A[2]
     qx, qy, qz = px - A[0], py - A[1], pz - A[2]
@@ -85,7 +85,7 @@ def _seg_dist(px, py, pz, A, B):
     return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
-@nb.njit(cache=True, fastmath=FAST)
+@nb.njit(cache=True, nogil=True, fastmath=FAST)
 def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, rest_sep,
                      rest_tol, cell):
     """The paper's sign test for skin passing through skin, made unambiguous.
@@ -211,7 +211,7 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, 
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def near_points(X, verts, P, r):
     """Positions into ``verts`` of the vertices within ``r`` of any point of ``P``."""
     out = np.empty(verts.shape[0], dtype=np.int64)
@@ -228,7 +228,7 @@ def near_points(X, verts, P, r):
     return out[:n]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def carried_normals(M, tri_bone, tri_normal, tris, out):
     """``out[a] = R(tri_bone[t]) n0[t]`` for ``t = tris[a]``: rest normals carried
     by each triangle's bone."""
@@ -241,7 +241,7 @@ def carried_normals(M, tri_bone, tri_normal, tris, out):
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def halfspace_project(X, verts, vside, crossed, segA, segB, R, c, n, eps, halfspace, moved):
     """Project onto the plane ``(c, n)``, ``eps`` to their own side (child side +n),
     the region vertices flagged ``crossed`` and, with ``halfspace``, every one on
@@ -266,7 +266,7 @@ def halfspace_project(X, verts, vside, crossed, segA, segB, R, c, n, eps, halfsp
     return k
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def ring_positions(ids, ptr, nbr, pos, mark):
     """Positions (``pos[v]``, -1 outside the region) of ``ids`` and their one-ring
     neighbours, each once, sorted; ``mark`` (n,) bool scratch, left all False."""

@@ -22,14 +22,14 @@ STRETCH, VOLUME, ENERGY, BIND = 0, 1, 2, 3
 FAST = {"nsz", "arcp", "contract", "afn", "reassoc"}
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _apply(X, t, dp):
     for b in range(4):
         for d in range(3):
             X[t[b], d] += dp[b, d]
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _stretch_range(X, w, E, rest, lam, idx, lo, hi, k, alpha, dp):
     for a in range(lo, hi):
         c = idx[a]
@@ -41,7 +41,7 @@ def _stretch_range(X, w, E, rest, lam, idx, lo, hi, k, alpha, dp):
             X[i1, d] += dp[1, d]
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _volume_range(X, w, T, rest, lam, idx, lo, hi, k, alpha, dp):
     for a in range(lo, hi):
         c = idx[a]
@@ -51,7 +51,7 @@ def _volume_range(X, w, T, rest, lam, idx, lo, hi, k, alpha, dp):
         _apply(X, t, dp)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _energy_range(X, w, m, T, ks, rest, lam, idx, lo, hi, k, alpha, dp):
     for a in range(lo, hi):
         c = idx[a]
@@ -61,7 +61,7 @@ def _energy_range(X, w, m, T, ks, rest, lam, idx, lo, hi, k, alpha, dp):
         _apply(X, t, dp)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _bind_range(X, w, seg, A, B, rest, lam, idx, lo, hi, k, alpha, dp):
     for a in range(lo, hi):
         i = idx[a]
@@ -73,7 +73,7 @@ def _bind_range(X, w, seg, A, B, rest, lam, idx, lo, hi, k, alpha, dp):
             X[i, d] += dp[0, d]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def contact_sweep(X, w, idx, planes, plane_of):
     """Project each vertex ``idx[a]`` to the positive side of its plane
     ``planes[plane_of[a]]`` (rows: centre xyz, unit normal xyz)."""
@@ -86,7 +86,7 @@ def contact_sweep(X, w, idx, planes, plane_of):
             X[i, d] += dp[0, d]
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _range(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, lo, hi, k, alpha, dp):
     if kind == STRETCH:
         _stretch_range(X, w, E, rest, lam, idx, lo, hi, k, alpha, dp)
@@ -98,7 +98,7 @@ def _range(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, lo, hi, k,
         _bind_range(X, w, seg, A, B, rest, lam, idx, lo, hi, k, alpha, dp)
 
 
-@nb.njit(cache=True, parallel=True, fastmath=FAST)
+@nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
 def _parallel(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha,
               nchunk):
     # One colour per (bounds[c], bounds[c+1]) range; chunks of a colour run in parallel.
@@ -114,7 +114,7 @@ def _parallel(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds,
                    lo + (n * h) // nch, lo + (n * (h + 1)) // nch, k, alpha, dp)
 
 
-@nb.njit(cache=True, fastmath=FAST)
+@nb.njit(cache=True, nogil=True, fastmath=FAST)
 def _sequential(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha):
     dp = np.zeros((4, 3))
     _range(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds[0],
@@ -136,7 +136,7 @@ def sweep(kind: int, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds
 
 
 # --------------------------------------------------------------------------- skinning
-@nb.njit(cache=True, parallel=True, fastmath=FAST)
+@nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
 def lbs(V, Widx, Wval, M, out):
     """Linear blend skinning ``v' = sum_j w_j M_j v`` with sparse weights.
 
@@ -158,7 +158,7 @@ def lbs(V, Widx, Wval, M, out):
         out[i, 0], out[i, 1], out[i, 2] = ox, oy, oz
 
 
-@nb.njit(cache=True, parallel=True, fastmath=FAST)
+@nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
 def dqs(V, Widx, Wval, Q, out):
     """Dual-quaternion skinning (Kavan et al. 2007) with sparse weights.
 
@@ -205,7 +205,7 @@ def dqs(V, Widx, Wval, Q, out):
         out[i, 0], out[i, 1], out[i, 2] = rx + px, ry + py, rz + pz
 
 
-@nb.njit(cache=True, fastmath=FAST)
+@nb.njit(cache=True, nogil=True, fastmath=FAST)
 def embed_update(base, X, Xbase, Etet, Ebary, verts, out):
     """Surface = its own stage-1 result plus the barycentric interpolation of
     the tet mesh's correction: ``out_i = base_i + sum_a b_ia (X - Xbase)[t_ia]``
@@ -221,7 +221,7 @@ def embed_update(base, X, Xbase, Etet, Ebary, verts, out):
             out[i, d] = s
 
 
-@nb.njit(cache=True, fastmath=FAST)
+@nb.njit(cache=True, nogil=True, fastmath=FAST)
 def laplacian_smooth(X, verts, ptr, nbr, k, iterations, buf):
     """Jacobi Laplacian smoothing of ``verts`` only, in place:
     ``p <- (1-k) p + k mean(one ring)``, ``iterations`` times.
@@ -247,7 +247,7 @@ def laplacian_smooth(X, verts, ptr, nbr, k, iterations, buf):
             X[i, 0], X[i, 1], X[i, 2] = buf[a, 0], buf[a, 1], buf[a, 2]
 
 
-@nb.njit(cache=True, fastmath=FAST)
+@nb.njit(cache=True, nogil=True, fastmath=FAST)
 def add_rows(out, base, d, verts):
     """``out[i] = base[i] + d[i]`` for ``i`` in ``verts``."""
     for a in range(verts.shape[0]):

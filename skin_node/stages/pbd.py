@@ -236,7 +236,7 @@ class PBD(Stage):
         solver.embed_update(fr.surface_base, X, fr.tet_base, r.Etet, r.Ebary, sverts, fr.surface)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _carry(X, verts, M, dom, corr, apply):
     """Warm start. ``apply``: ``X_i += R_i corr_i``; else ``corr_i = R_i^T X_i``
     (``X`` then holding the correction), with ``R_i`` the rotation of vertex i's
@@ -252,7 +252,7 @@ def _carry(X, verts, M, dom, corr, apply):
                 corr[i, c] = R[0, c] * X[i, 0] + R[1, c] * X[i, 1] + R[2, c] * X[i, 2]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _max_move(X, prev, idx):
     m = 0.0
     for a in range(idx.shape[0]):

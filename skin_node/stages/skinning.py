@@ -14,7 +14,7 @@ def matrices_to_dual_quaternions(M: np.ndarray) -> np.ndarray:
     return _dual_quaternions(M, np.empty((len(M), 8)))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _dual_quaternions(M, q):
     for i in range(M.shape[0]):
         r = M[i]

@@ -32,7 +32,7 @@ from .base import Frame, Stage
 from .collision import JointRegions
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def volume_and_gradient(X, F, inc_ptr, inc, verts, g):
     """Enclosed volume of the whole mesh, and ``g_i = dV/dp_i`` for ``verts`` only:
     ``(1/6) sum over the faces (i, b, c) around i of p_b x p_c``."""
@@ -58,7 +58,7 @@ def volume_and_gradient(X, F, inc_ptr, inc, verts, g):
     return vol
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _mobility(X, mob, Z, ZJ, ZL, ZS, fade, A, B, R, m):
     """``m[ZL] = max over entries of mob[Z, j] * fade[j] * ramp``, with ramp 0
     within the other side's flesh radius ``R`` of its bone, 1 past 1.5 R."""
@@ -79,7 +79,7 @@ def _mobility(X, mob, Z, ZJ, ZL, ZS, fade, A, B, R, m):
             m[ZL[e]] = val
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def region_volume_gradient(X, F, tris, cx, cy, cz, g):
     """Volume of the cone from ``c`` over the triangles ``tris`` and its gradient,
     written into ``g`` at their vertices (other rows of ``g`` are left alone)."""
@@ -110,7 +110,7 @@ def region_volume_gradient(X, F, tris, cx, cy, cz, g):
     return vol
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def move_along_normals(X, verts, m, g, C, budget):
     """Project ``C = 0`` to first order by moving ``verts`` along their unit
     normals ``g / |g|`` by ``lam * m_i``; ``dV = sum g . dp = lam sum m |g|``.
@@ -134,7 +134,7 @@ def move_along_normals(X, verts, m, g, C, budget):
     return lam, lam * den
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def ring_distance(sources, ptr, nbr, hops, limit, queue):
     """Breadth-first hop counts from ``sources`` over the one-ring CSR, up to
     ``limit``; ``hops`` must hold ``limit`` everywhere on entry. Returns the
@@ -162,7 +162,7 @@ def ring_distance(sources, ptr, nbr, hops, limit, queue):
     return n
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def restore_region(X, F, tris, c, verts, mob, side, fade, A, B, R, hops, ring_width, vol0,
                    max_move, g, m, passes):
     """Give joint region ``tris`` its rest volume ``vol0`` back (cone from the
@@ -192,7 +192,7 @@ def restore_region(X, F, tris, c, verts, mob, side, fade, A, B, R, hops, ring_wi
     return vol / vol0
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _seg_dist3(px, py, pz, A, B):
     ex, ey, ez = B[0] - A[0], B[1] - A[1], B[2] - A[2]
     qx, qy, qz = px - A[0], py - A[1], pz - A[2]
