@@ -118,42 +118,72 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, 
     nt = tris.shape[0]
     if nt == 0 or nv == 0:
         return out
-    size = 1
-    while size < 2 * nt:
-        size *= 2
     h = cell
-    # One hash table per side (keys side * size + cell hash): a vertex walks only
-    # the other side's triangles.
-    counts = np.zeros(2 * size + 1, dtype=np.int64)
-    keys = np.empty(nt, dtype=np.int64)
+    # Only triangles that can be within h of a candidate: centre inside the
+    # candidates' bounding box grown by h and the triangle's own radius (a recheck
+    # of a few pushed vertices then hashes a few triangles, not the region's).
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for a in range(nv):
+        for d in range(3):
+            lo[d] = min(lo[d], X[verts[a], d])
+            hi[d] = max(hi[d], X[verts[a], d])
+    keep = np.empty(nt, dtype=np.int64)
+    cen = np.empty((nt, 4))
+    nk = 0
     for a in range(nt):
-        gx, gy, gz, _, _, _ = _plane(X, F, tris[a])
-        k = tside[a] * size + _cell_hash(int(math.floor(gx / h)), int(math.floor(gy / h)),
-                                         int(math.floor(gz / h)), size)
-        keys[a] = k
-        counts[k + 1] += 1
-    for k in range(2 * size):
-        counts[k + 1] += counts[k]
-    fill = counts[:-1].copy()
-    items = np.empty(nt, dtype=np.int64)
-    inorm = np.empty((nt, 3))
-    for a in range(nt):
-        items[fill[keys[a]]] = tris[a]
-        inorm[fill[keys[a]]] = tnorm[a]
-        fill[keys[a]] += 1
-    # Per item: centre now, bounding radius, centre at rest (so the pair loop
-    # rejects most triangles before the exact closest-point test).
-    geo = np.empty((nt, 7))
-    for b in range(nt):
-        f = items[b]
-        gx, gy, gz, _, _, _ = _plane(X, F, f)
+        f = tris[a]
+        i0, i1, i2 = F[f, 0], F[f, 1], F[f, 2]
+        gx = (X[i0, 0] + X[i1, 0] + X[i2, 0]) / 3.0
+        gy = (X[i0, 1] + X[i1, 1] + X[i2, 1]) / 3.0
+        gz = (X[i0, 2] + X[i1, 2] + X[i2, 2]) / 3.0
         rr = 0.0
         for e in range(3):
             v = F[f, e]
             rr = max(rr, (X[v, 0] - gx) ** 2 + (X[v, 1] - gy) ** 2 + (X[v, 2] - gz) ** 2)
-        g0, g1, g2, _, _, _ = _plane(X0, F, f)
-        geo[b, 0], geo[b, 1], geo[b, 2], geo[b, 3] = gx, gy, gz, math.sqrt(rr)
-        geo[b, 4], geo[b, 5], geo[b, 6] = g0, g1, g2
+        r = math.sqrt(rr)
+        g = h + r
+        if (gx < lo[0] - g or gx > hi[0] + g or gy < lo[1] - g or gy > hi[1] + g
+                or gz < lo[2] - g or gz > hi[2] + g):
+            continue
+        keep[nk] = a
+        cen[nk, 0], cen[nk, 1], cen[nk, 2], cen[nk, 3] = gx, gy, gz, r
+        nk += 1
+    if nk == 0:
+        return out
+    size = 1
+    while size < 2 * nk:
+        size *= 2
+    # One hash table per side (keys side * size + cell hash): a vertex walks only
+    # the other side's triangles.
+    counts = np.zeros(2 * size + 1, dtype=np.int64)
+    keys = np.empty(nk, dtype=np.int64)
+    for c in range(nk):
+        k = tside[keep[c]] * size + _cell_hash(int(math.floor(cen[c, 0] / h)),
+                                               int(math.floor(cen[c, 1] / h)),
+                                               int(math.floor(cen[c, 2] / h)), size)
+        keys[c] = k
+        counts[k + 1] += 1
+    for k in range(2 * size):
+        counts[k + 1] += counts[k]
+    fill = counts[:-1].copy()
+    items = np.empty(nk, dtype=np.int64)
+    inorm = np.empty((nk, 3))
+    # Per item: centre now, bounding radius, centre at rest (so the pair loop
+    # rejects most triangles before the exact closest-point test).
+    geo = np.empty((nk, 7))
+    for c in range(nk):
+        b = fill[keys[c]]
+        fill[keys[c]] += 1
+        a = keep[c]
+        f = tris[a]
+        items[b] = f
+        inorm[b] = tnorm[a]
+        geo[b, 0], geo[b, 1], geo[b, 2], geo[b, 3] = cen[c, 0], cen[c, 1], cen[c, 2], cen[c, 3]
+        i0, i1, i2 = F[f, 0], F[f, 1], F[f, 2]
+        geo[b, 4] = (X0[i0, 0] + X0[i1, 0] + X0[i2, 0]) / 3.0
+        geo[b, 5] = (X0[i0, 1] + X0[i1, 1] + X0[i2, 1]) / 3.0
+        geo[b, 6] = (X0[i0, 2] + X0[i1, 2] + X0[i2, 2]) / 3.0
     sep2 = rest_sep * rest_sep
     for a in range(nv):
         i = verts[a]
