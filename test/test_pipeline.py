@@ -91,6 +91,29 @@ def test_walk_keeps_every_bent_joint_region_volume(humanoid):
     assert cross <= cross_before, (cross, cross_before)
 
 
+def test_parent_region_check_clears_the_chest_under_lowered_arms():
+    """Built-in humanoid at its default 24k vertices, walk every 12th frame: the
+    lowered arms' solve moves chest skin through the skin; checking the folding
+    joints' parent region (``collision_parent``) leaves none, in any region."""
+    from skin_node import make_clip
+    ch = load_character("humanoid", progress=False)
+    regions = JointRegions(ch)
+    frames = make_clip("walk", ch.skeleton).frames[::12]
+    chest = ch.skeleton.names.index("chest")
+
+    def crossings(**params):
+        pipe, total, in_chest = Pipeline(ch, **params), 0, 0
+        for q in frames:
+            V = pipe.deform(q)
+            M = pipe.last_frame.M
+            total += count_crossings(V, ch.V, ch.F, M, regions)
+            in_chest += count_crossings(V, ch.V, ch.F, M, regions, joints=[chest])
+        return total, in_chest
+
+    assert crossings(collision_parent=False)[1] > 5
+    assert crossings() == (0, 0)
+
+
 @pytest.mark.parametrize("case", ["arm", "humanoid"])
 def test_no_skin_crossings_after_collision(case, arm, humanoid):
     ch = arm if case == "arm" else humanoid
