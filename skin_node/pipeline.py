@@ -139,7 +139,8 @@ PIPELINE_PARAMS = {
                                 "joint regions", choices=("joints", "inside", "outside")),
     "volume_max_bulge": ParamSpec(float, 0.5, 0.0, 2.0, "with volume_regions 'joints': the "
                                   "most any skin moves to give a region its volume back, in "
-                                  "limb radii of the joint"),
+                                  "limb radii of the joint, up to a right angle; falling to "
+                                  "0 at a full fold"),
     "smoothing": ParamSpec(float, 0.5, 0.0, 1.0, "Laplacian smoothing strength k"),
     "smoothing_iterations": ParamSpec(int, 4, 0, 50, "Laplacian smoothing passes"),
     "smooth_mode": ParamSpec(str, "displacement", description="'position' (the paper: smooth "

@@ -16,7 +16,11 @@ the joint's posed centre to it (:func:`skin_node.metrics.region_volume`), one
 constraint per joint. Skin the collision stage pressed into contact, and its
 neighbours within half the joint's limb radius, does not move, nor does skin
 within the other side's flesh radius of its bone, so resolved folds stay
-resolved and the volume reappears as a bulge on the outside of the bend.
+resolved and the volume reappears as a bulge on the outside of the bend. No
+skin moves farther than ``volume_max_bulge`` limb radii, less past a right
+angle (the cones of a deeply folded region overlap: that share was never
+flesh). Whatever the whole mesh then misses by more than 1% goes to the bent
+joints' zones around the folds, as in ``inside``.
 ``inside`` / ``outside`` keep only the whole mesh's volume instead, moving
 the bent joints' zones with or without their joint regions.
 """
@@ -229,8 +233,11 @@ class Volume(Stage):
         self._threshold = r.threshold
         self.V0 = mesh_volume(character.V, character.F)
         self.regions = regs = JointRegions(character)
-        # Per joint region: its triangles' vertices that may move (the zone's),
-        # their side and mobility, and the region's rest volume about the joint.
+        # Per joint region: its vertices that may move (the zone's), their side and
+        # mobility, and the region's rest volume about the joint. The mobility falls
+        # smoothly to 0 towards the region's border (over a third of the limb
+        # radius), where the skin outside it stays put: no step at the border.
+        from scipy.spatial import cKDTree
         self.rverts, self.rside, self.rmob = [], [], []
         self.rvol0 = np.zeros(J)
         for j in range(J):
@@ -238,8 +245,15 @@ class Volume(Stage):
             v = np.unique(self.F[t]) if len(t) and j > 0 else np.zeros(0, np.int64)
             keep = (np.isin(v, self.zone[j]) & (r.region[v] == j)) if j > 0 else np.zeros(0, bool)
             v = v[keep]
+            mob = self.mobility[v, j] if j > 0 else np.zeros(0)
+            outside = np.unique(self.F[t])
+            outside = outside[r.region[outside] != j] if len(t) else outside
+            if len(v) and len(outside):
+                d, _ = cKDTree(character.V[outside]).query(character.V[v])
+                x = np.clip(d / max(r.radius[j] / 3.0, 1e-9), 0.0, 1.0)
+                mob = mob * x * x * (3.0 - 2.0 * x)
             self.rverts.append(v.astype(np.int64))
-            self.rmob.append(self.mobility[v, j] if j > 0 else np.zeros(0))
+            self.rmob.append(mob)
             self.rside.append(self.side[j][np.searchsorted(self.zone[j], v)] if j > 0
                               else np.zeros(0, np.int64))
             if len(t):
@@ -267,6 +281,10 @@ class Volume(Stage):
             return
         if self.params["volume_regions"] == "joints":
             self._joints(fr, js)
+            # What the regions could not take back (a fold past a right angle) and
+            # the whole mesh misses by more than 1% goes to the bent joints' zones
+            # around the folds; within 1% the skin is left alone.
+            self._whole(fr, js, slack=0.01)
         else:
             self._whole(fr, js)
 
@@ -296,16 +314,22 @@ class Volume(Stage):
             # No vertex moves farther than volume_max_bulge limb radii: past that a
             # deep fold's lost volume is not worth a balloon (the cones of a region
             # folded past ~120 degrees overlap, and no skin can make that up).
+            # Past a right angle the region's cones from the joint overlap more and
+            # more: that share of the "lost" volume was never flesh, and giving it
+            # back would balloon the elbow. The bulge allowed falls linearly from
+            # 90 degrees to nothing at 180.
+            fold = min(1.0, max(0.0, (np.pi - fr.angles[j]) / (0.5 * np.pi)))
             worst = min(worst, restore_region(
                 X, self.F, regs.tris[j], fr.G[j, :3, 3], v, self.rmob[j], self.rside[j],
                 fr.fade[j], A[j], B[j], regs.R[j], hops, self._ring_width[j], self.rvol0[j],
-                cap * regs.radius[j], self._g, self._m, 2))
+                cap * fold * regs.radius[j], self._g, self._m, 2))
         if reached:
             hops[self._queue[:reached]] = self._hop_limit
         fr.counts["region_volume_min"] = worst
 
-    def _whole(self, fr: Frame, js) -> None:
-        """One constraint on the whole mesh's volume, moving the bent joints' zones."""
+    def _whole(self, fr: Frame, js, slack: float = 0.0) -> None:
+        """One constraint on the whole mesh's volume, moving the bent joints' zones;
+        with ``slack`` it only lifts a volume below ``(1 - slack)`` of rest to that."""
         key = fr.bent.tobytes()
         if key != self._key:
             self._key, self._fold = key, {}
@@ -337,11 +361,14 @@ class Volume(Stage):
             m *= self._fold[(key, j)]
         g = np.empty((len(v), 3))
         vol = volume_and_gradient(X, self.F, self.inc_ptr, self.inc, v, g)
+        fr.counts["volume_ratio"] = vol / self.V0
+        target = (1.0 - slack) * self.V0
+        if slack > 0.0 and vol >= target:
+            return
         # Move along unit normals n = g/|g| by lam * m: an even layer whatever the
         # triangle sizes. To first order dV = sum g . dp = lam * sum m |g|.
         a = np.linalg.norm(g, axis=1)
         den = float((m * a).sum())
         if den > 0.0:
             n = g / np.maximum(a, 1e-30)[:, None]
-            X[v] -= ((vol - self.V0) / den) * m[:, None] * n
-        fr.counts["volume_ratio"] = vol / self.V0
+            X[v] -= ((vol - target) / den) * m[:, None] * n
