@@ -32,7 +32,7 @@ import numba as nb
 import numpy as np
 
 from ..metrics import mesh_volume, region_volume
-from .base import Frame, Stage
+from .base import Frame, KeyedCache, Stage
 from .collision import JointRegions
 
 
@@ -267,13 +267,14 @@ class Volume(Stage):
         self._queue = np.empty(len(character.V), dtype=np.int64)
         self._ptr, self._adj = r.adj_ptr, r.adj
         self._g = np.zeros((len(character.V), 3))
+        self._none, self._gnone = np.zeros(0, np.int64), np.zeros((0, 3))
         self._m = np.zeros(len(character.V))
         # vertex -> incident faces, CSR
         F = character.F
         order = np.argsort(F.ravel(), kind="stable")
         self.inc = (order // 3).astype(np.int64)
         self.inc_ptr = np.searchsorted(F.ravel()[order], np.arange(len(character.V) + 1))
-        self._key, self._verts = None, None
+        self._entries, self._fold = KeyedCache(), KeyedCache(64)
 
     def __call__(self, fr: Frame) -> None:
         js = np.flatnonzero(fr.bent)
@@ -330,17 +331,23 @@ class Volume(Stage):
     def _whole(self, fr: Frame, js, slack: float = 0.0) -> None:
         """One constraint on the whole mesh's volume, moving the bent joints' zones;
         with ``slack`` it only lifts a volume below ``(1 - slack)`` of rest to that."""
+        if slack > 0.0:
+            vol = volume_and_gradient(fr.surface, self.F, self.inc_ptr, self.inc,
+                                      self._none, self._gnone)
+            fr.counts["volume_ratio"] = vol / self.V0
+            if vol >= (1.0 - slack) * self.V0:
+                return
         key = fr.bent.tobytes()
-        if key != self._key:
-            self._key, self._fold = key, {}
+
+        def entries():
             v = np.unique(np.concatenate([self.zone[j] for j in js]))
             Z = np.concatenate([self.zone[j] for j in js])
             ZJ = np.concatenate([np.full(len(self.zone[j]), j) for j in js])
             mob = np.concatenate([self.mobility[self.zone[j], j] for j in js])
             ZS = np.concatenate([self.side[j] for j in js])
-            self._verts, self._entries = v, (Z, ZJ, np.searchsorted(v, Z), ZS, mob)
-        v = self._verts
-        Z, ZJ, ZL, ZS, mob = self._entries
+            return v, (Z, ZJ, np.searchsorted(v, Z), ZS, mob)
+
+        v, (Z, ZJ, ZL, ZS, mob) = self._entries.get(key, entries)
         X = fr.surface
         A, B = self._posed(fr, js)
         m = np.zeros(len(v))
@@ -348,17 +355,15 @@ class Volume(Stage):
         if self.params["volume_regions"] == "outside":
             # Inflating the joint regions themselves can push skin through skin where
             # two of them meet (CesiumMan's chest): grow the limbs between them instead.
-            if (key, -1) not in self._fold:
-                self._fold[(key, -1)] = np.flatnonzero(self._region[v] >= 0)
-            m[self._fold[(key, -1)]] = 0.0
+            m[self._fold.get((key, -1), lambda: np.flatnonzero(self._region[v] >= 0))] = 0.0
         for j in fr.counts.get("collision_joints", ()):
             # The region whose fold the collision stage resolved stays as it is; the
             # mobility rises smoothly past it (a step there would leave a ridge).
-            if (key, j) not in self._fold:
+            def ramp(j=j):
                 d = np.linalg.norm(self.character.V[v] - self.character.skeleton.rest_positions[j],
                                    axis=1) / max(self._threshold[j], 1e-9)
-                self._fold[(key, j)] = np.clip((d - 1.0) / 0.75, 0.0, 1.0)
-            m *= self._fold[(key, j)]
+                return np.clip((d - 1.0) / 0.75, 0.0, 1.0)
+            m *= self._fold.get((key, j), ramp)
         g = np.empty((len(v), 3))
         vol = volume_and_gradient(X, self.F, self.inc_ptr, self.inc, v, g)
         fr.counts["volume_ratio"] = vol / self.V0
