@@ -312,13 +312,11 @@ class Volume(Stage):
             v = self.rverts[j]
             if not len(v):
                 continue
-            # No vertex moves farther than volume_max_bulge limb radii: past that a
-            # deep fold's lost volume is not worth a balloon (the cones of a region
-            # folded past ~120 degrees overlap, and no skin can make that up).
-            # Past a right angle the region's cones from the joint overlap more and
-            # more: that share of the "lost" volume was never flesh, and giving it
-            # back would balloon the elbow. The bulge allowed falls linearly from
-            # 90 degrees to nothing at 180.
+            # No vertex moves farther than volume_max_bulge limb radii, and less past
+            # a right angle: there the region's cones from the joint overlap more and
+            # more, that share of the "lost" volume was never flesh, and giving it
+            # back would balloon the elbow. The allowance falls linearly from 90
+            # degrees to nothing at 180.
             fold = min(1.0, max(0.0, (np.pi - fr.angles[j]) / (0.5 * np.pi)))
             worst = min(worst, restore_region(
                 X, self.F, regs.tris[j], fr.G[j, :3, 3], v, self.rmob[j], self.rside[j],
