@@ -74,7 +74,8 @@ def _plane(X, F, f):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _seg_dist(px, py, pz, A, B):
+def seg_dist(px, py, pz, A, B):
+    """Distance from point ``p`` to the segment ``A``-``B`` (3-vectors)."""
     ex, ey, ez = B[0] - A[0], B[1] - A[1], B[2] - A[2]
     qx, qy, qz = px - A[0], py - A[1], pz - A[2]
     ee = ex * ex + ey * ey + ez * ez
@@ -189,7 +190,7 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, 
         i = verts[a]
         o = 1 - vside[a]
         px, py, pz = X[i, 0], X[i, 1], X[i, 2]
-        dbone = _seg_dist(px, py, pz, segA[o], segB[o])
+        dbone = seg_dist(px, py, pz, segA[o], segB[o])
         if dbone > R[o]:
             continue
         ix, iy, iz = int(math.floor(px / h)), int(math.floor(py / h)), int(math.floor(pz / h))
@@ -285,7 +286,7 @@ def halfspace_project(X, verts, vside, crossed, segA, segB, R, c, n, eps, halfsp
         move = crossed[a]
         if not move and halfspace and sgn * dist < eps:
             o = 1 - vside[a]
-            move = _seg_dist(X[i, 0], X[i, 1], X[i, 2], segA[o], segB[o]) < R[o]
+            move = seg_dist(X[i, 0], X[i, 1], X[i, 2], segA[o], segB[o]) < R[o]
         if move:
             f = dist - sgn * eps
             X[i, 0] -= f * n[0]

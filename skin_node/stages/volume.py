@@ -33,6 +33,7 @@ import numpy as np
 
 from ..metrics import mesh_volume, region_volume
 from .base import Frame, KeyedCache, Stage
+from ..kernels.collision import seg_dist
 from .collision import JointRegions
 
 
@@ -62,22 +63,19 @@ def volume_and_gradient(X, F, inc_ptr, inc, verts, g):
     return vol
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def flesh_ramp(d, R):
+    """0 within the other side's flesh radius ``R`` of its bone, rising to 1 at 1.5 ``R``."""
+    return min(1.0, max(0.0, (d / max(R, 1e-9) - 1.0) / 0.5))
+
+
 @nb.njit(cache=True, nogil=True)
 def _mobility(X, mob, Z, ZJ, ZL, ZS, fade, A, B, R, m):
     """``m[ZL] = max over entries of mob[Z, j] * fade[j] * ramp``, with ramp 0
     within the other side's flesh radius ``R`` of its bone, 1 past 1.5 R."""
     for e in range(Z.shape[0]):
         i, j, o = Z[e], ZJ[e], 1 - ZS[e]
-        ax, ay, az = A[j, o, 0], A[j, o, 1], A[j, o, 2]
-        ex, ey, ez = B[j, o, 0] - ax, B[j, o, 1] - ay, B[j, o, 2] - az
-        px, py, pz = X[i, 0] - ax, X[i, 1] - ay, X[i, 2] - az
-        ee = ex * ex + ey * ey + ez * ez
-        t = 0.0
-        if ee > 0.0:
-            t = min(1.0, max(0.0, (px * ex + py * ey + pz * ez) / ee))
-        dx, dy, dz = px - t * ex, py - t * ey, pz - t * ez
-        d = np.sqrt(dx * dx + dy * dy + dz * dz)
-        ramp = min(1.0, max(0.0, (d / max(R[j, o], 1e-9) - 1.0) / 0.5))
+        ramp = flesh_ramp(seg_dist(X[i, 0], X[i, 1], X[i, 2], A[j, o], B[j, o]), R[j, o])
         val = mob[e] * fade[j] * ramp
         if val > m[ZL[e]]:
             m[ZL[e]] = val
@@ -178,8 +176,7 @@ def restore_region(X, F, tris, c, verts, mob, side, fade, A, B, R, hops, ring_wi
     mmax = 0.0
     for a in range(verts.shape[0]):
         i, o = verts[a], 1 - side[a]
-        d = _seg_dist3(X[i, 0], X[i, 1], X[i, 2], A[o], B[o])
-        ramp = min(1.0, max(0.0, (d / max(R[o], 1e-9) - 1.0) / 0.5))
+        ramp = flesh_ramp(seg_dist(X[i, 0], X[i, 1], X[i, 2], A[o], B[o]), R[o])
         m[a] = mob[a] * fade * ramp * min(1.0, hops[i] / ring_width)
         mmax = max(mmax, m[a])
     if vol0 == 0.0:
@@ -194,18 +191,6 @@ def restore_region(X, F, tris, c, verts, mob, side, fade, A, B, R, hops, ring_wi
         budget -= abs(lam)
         vol += dv
     return vol / vol0
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _seg_dist3(px, py, pz, A, B):
-    ex, ey, ez = B[0] - A[0], B[1] - A[1], B[2] - A[2]
-    qx, qy, qz = px - A[0], py - A[1], pz - A[2]
-    ee = ex * ex + ey * ey + ez * ez
-    t = 0.0
-    if ee > 0.0:
-        t = min(1.0, max(0.0, (qx * ex + qy * ey + qz * ez) / ee))
-    dx, dy, dz = qx - t * ex, qy - t * ey, qz - t * ez
-    return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
 class Volume(Stage):
@@ -280,14 +265,15 @@ class Volume(Stage):
         js = np.flatnonzero(fr.bent)
         if not len(js) or not self.params["volume_preserve"]:
             return
+        posed = self._posed(fr, js)          # the bent joints' bone segments, (J, 2, 3) x2
         if self.params["volume_regions"] == "joints":
-            self._joints(fr, js)
+            self._joints(fr, js, posed)
             # What the regions could not take back (a fold past a right angle) and
             # the whole mesh misses by more than 1% goes to the bent joints' zones
             # around the folds; within 1% the skin is left alone.
-            self._whole(fr, js, slack=0.01)
+            self._whole(fr, js, posed, slack=0.01)
         else:
-            self._whole(fr, js)
+            self._whole(fr, js, posed)
 
     def _posed(self, fr: Frame, js):
         J = len(fr.fade)
@@ -297,9 +283,9 @@ class Volume(Stage):
             A[j], B[j] = self.regions.posed_segments(j, fr.M)
         return A, B
 
-    def _joints(self, fr: Frame, js) -> None:
+    def _joints(self, fr: Frame, js, posed) -> None:
         X = fr.surface
-        A, B = self._posed(fr, js)
+        A, B = posed
         hops = self._hops
         reached = 0
         if fr.touched:
@@ -326,7 +312,7 @@ class Volume(Stage):
             hops[self._queue[:reached]] = self._hop_limit
         fr.counts["region_volume_min"] = worst
 
-    def _whole(self, fr: Frame, js, slack: float = 0.0) -> None:
+    def _whole(self, fr: Frame, js, posed, slack: float = 0.0) -> None:
         """One constraint on the whole mesh's volume, moving the bent joints' zones;
         with ``slack`` it only lifts a volume below ``(1 - slack)`` of rest to that."""
         if slack > 0.0:
@@ -347,7 +333,7 @@ class Volume(Stage):
 
         v, (Z, ZJ, ZL, ZS, mob) = self._entries.get(key, entries)
         X = fr.surface
-        A, B = self._posed(fr, js)
+        A, B = posed
         m = np.zeros(len(v))
         _mobility(X, mob, Z, ZJ, ZL, ZS, fr.fade, A, B, self.regions.R, m)
         if self.params["volume_regions"] == "outside":
