@@ -172,6 +172,23 @@ def test_energy_value_matches_reference(seed):
                                                                    rel=1e-12)
 
 
+def test_energy_step_never_exceeds_the_largest_spring_error():
+    """Where C's gradient nearly vanishes above zero (springs that cannot all be
+    met) the plain step C / |grad C| is unbounded; no vertex may move farther than
+    the tet's largest spring error. Uncapped, 2000 random tets reach 1.6 times it."""
+    rng = np.random.default_rng(0)
+    t, w, m, ks = np.arange(4), np.ones(4), np.ones(4), np.ones(4)
+    worst = 0.0
+    for _ in range(2000):
+        X = rng.normal(size=(4, 3)) * SCALE
+        d = rng.uniform(0.2, 1.5, 4) * SCALE
+        dp = np.zeros((4, 3))
+        energy_constraint(X, t, w, m, ks, d, 1.0, 0.0, 0.0, dp)
+        err = np.abs(np.linalg.norm(X - X.mean(0), axis=1) - d).max()
+        worst = max(worst, np.linalg.norm(dp, axis=1).max() / err)
+    assert 0.5 < worst <= 1.0 + 1e-9, worst
+
+
 @pytest.mark.parametrize("seed", SEEDS)
 def test_tet_volume_matches_reference(seed):
     X = rand_tet(np.random.default_rng(seed))

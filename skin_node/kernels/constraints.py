@@ -183,10 +183,12 @@ def energy_constraint(X, t, w, m, ks, rest, k, alpha, lam, dp):
     cx, cy, cz, M = _centroid(X, t, m)
     C = 0.0
     sx = sy = sz = 0.0
+    emax = 0.0
     for a in range(4):
         dx, dy, dz = X[t[a], 0] - cx, X[t[a], 1] - cy, X[t[a], 2] - cz
         L = math.sqrt(dx * dx + dy * dy + dz * dz)
         e = L - rest[a]
+        emax = max(emax, abs(e))
         C += 0.5 * ks[a] * e * e
         if L > _EPS:
             f = ks[a] * e / L
@@ -204,6 +206,16 @@ def energy_constraint(X, t, w, m, ks, rest, k, alpha, lam, dp):
         dp[a, 2] -= r * sz
         wsum += w[t[a]] * (dp[a, 0] ** 2 + dp[a, 1] ** 2 + dp[a, 2] ** 2)
     dlam = _step(C, wsum, k, alpha, lam)
+    # C >= 0 can have a minimum above zero (springs that cannot all be met), where
+    # its gradient vanishes and the step C / |grad C| grows without bound: a tet
+    # near one would throw its vertices centimetres and flip between frames. No
+    # vertex moves farther than the tet's largest spring error.
+    big = 0.0
+    for a in range(4):
+        big = max(big, w[t[a]] * abs(dlam) * math.sqrt(dp[a, 0] ** 2 + dp[a, 1] ** 2
+                                                       + dp[a, 2] ** 2))
+    if big > emax:
+        dlam *= emax / big
     for a in range(4):
         wa = w[t[a]] * dlam
         dp[a, 0] *= wa
