@@ -223,3 +223,36 @@ def test_stability_10000_random_frames(small_arm):
     assert worst < 0.5, worst
     V = ours.deform(ch.skeleton.rest_pose())
     assert np.linalg.norm(V - ch.V, axis=1).max() < 1e-3
+
+
+def test_two_thread_solve_splits_into_slabs_that_share_no_vertex(arm):
+    """threads: 2 sweeps two vertex-disjoint slabs at once, then the constraints
+    between them: the parts must not share a vertex (a race otherwise), the
+    separator must be small, and running the parts in parallel must give what
+    running them one after the other gives."""
+    import numba
+    from skin_node.kernels import solver
+    from skin_node.stages.pbd import BIND, ENERGY, STRETCH, VOLUME
+    pipe = Pipeline(arm, ["dqs", "pbd"], threads=2)
+    pipe.deform(arm.pose(elbow_rz=np.radians(120)))
+    pbd, r = pipe.stages[1], arm.rig
+    sets, w = pbd._sets.get(pbd._key, None)[:2]
+    for kind, members in ((STRETCH, r.E), (VOLUME, r.T), (BIND, np.arange(len(r.TV))[:, None])):
+        idx, bounds = sets[kind]
+        assert len(bounds) == 4 and bounds[-1] == len(idx)
+        parts = [set(members[idx[bounds[h]:bounds[h + 1]]].ravel()) for h in range(2)]
+        assert parts[0] and parts[1] and not parts[0] & parts[1]
+        assert bounds[3] - bounds[2] < 0.2 * len(idx), (kind, bounds)
+    fr = pipe.last_frame
+    idx, bounds = sets[ENERGY]
+    out = []
+    for threads in (1, 2):
+        numba.set_num_threads(threads)
+        X = fr.tet_base.copy()
+        solver.sweep(ENERGY, X, w, pbd.mass, r.E, r.T, np.full(4, 0.5), r.bseg, fr.seg_A,
+                     fr.seg_B, r.brest, r.erest, np.zeros(len(r.T)), idx, bounds, 0.5, 0.0,
+                     threads)
+        out.append(X)
+    numba.set_num_threads(1)
+    assert np.abs(out[0] - out[1]).max() < 1e-12
+    assert np.abs(out[0] - fr.tet_base).max() > 1e-4

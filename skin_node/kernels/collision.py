@@ -15,8 +15,9 @@ _OFFSETS = np.array(sorted(((a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) fo
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def _cell_hash(ix, iy, iz, size):
+    """Cell key in ``[0, size)``; ``size`` a power of two (a mask, not a modulo)."""
     h = (ix * 73856093) ^ (iy * 19349663) ^ (iz * 83492791)
-    return h % size
+    return h & (size - 1)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -86,9 +87,9 @@ def seg_dist(px, py, pz, A, B):
     return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
-@nb.njit(cache=True, nogil=True, fastmath=FAST)
+@nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
 def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, rest_sep,
-                     rest_tol, cell):
+                     rest_tol, cell, nth=1):
     """The paper's sign test for skin passing through skin, made unambiguous.
 
     A joint region has two sides, 0 (parent bone) and 1 (child bone); each
@@ -107,7 +108,8 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, 
     concave rest fold may already sit behind a far plane). A candidate with no
     skin of side ``o`` within ``cell`` but deep in its flesh (closer than
     ``R[o] / 2`` to bone ``o`` and farther than ``R[o]`` from the joint) has
-    crossed too.
+    crossed too. ``nth``: how many interleaved slices the vertices are dealt
+    into, one per thread.
 
     Returns
     -------
@@ -132,6 +134,7 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, 
     keep = np.empty(nt, dtype=np.int64)
     cen = np.empty((nt, 4))
     nk = 0
+    rmax = 0.0
     for a in range(nt):
         f = tris[a]
         i0, i1, i2 = F[f, 0], F[f, 1], F[f, 2]
@@ -149,6 +152,7 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, 
             continue
         keep[nk] = a
         cen[nk, 0], cen[nk, 1], cen[nk, 2], cen[nk, 3] = gx, gy, gz, r
+        rmax = max(rmax, r)
         nk += 1
     if nk == 0:
         return out
@@ -186,20 +190,43 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, 
         geo[b, 5] = (X0[i0, 1] + X0[i1, 1] + X0[i2, 1]) / 3.0
         geo[b, 6] = (X0[i0, 2] + X0[i1, 2] + X0[i2, 2]) / 3.0
     sep2 = rest_sep * rest_sep
-    for a in range(nv):
+    # Vertices are independent: deal them out to the threads in turn (the
+    # candidates cluster, so contiguous halves would not balance).
+    for t in nb.prange(nth):
+        _crossed_range(X, X0, F, verts, vside, segA, segB, R, rest_tol, h, size, rmax, sep2,
+                       counts, items, inorm, geo, t, nth, out)
+    return out
+
+
+@nb.njit(cache=True, nogil=True, fastmath=FAST)
+def _crossed_range(X, X0, F, verts, vside, segA, segB, R, rest_tol, h, size, rmax, sep2,
+                   counts, items, inorm, geo, first, step, out):
+    """The per-vertex test of :func:`crossed_vertices` for ``verts[first::step]``."""
+    for a in range(first, verts.shape[0], step):
         i = verts[a]
         o = 1 - vside[a]
         px, py, pz = X[i, 0], X[i, 1], X[i, 2]
         dbone = seg_dist(px, py, pz, segA[o], segB[o])
         if dbone > R[o]:
             continue
-        ix, iy, iz = int(math.floor(px / h)), int(math.floor(py / h)), int(math.floor(pz / h))
+        fx, fy, fz = px / h, py / h, pz / h
+        ix, iy, iz = int(math.floor(fx)), int(math.floor(fy)), int(math.floor(fz))
+        # distance from p to the low and high faces of its own cell
+        lx, ly, lz = (fx - ix) * h, (fy - iy) * h, (fz - iz) * h
+        ux, uy, uz = h - lx, h - ly, h - lz
         best, best_d, best_in, best_b = -1, h * h, False, -1
         reach = h                                  # sqrt(best_d)
         for c27 in range(27):
             # the vertex's own cell first: an early near hit lets the bounding-sphere
             # test reject most triangles of the other cells
             dx, dy, dz = _OFFSETS[c27, 0], _OFFSETS[c27, 1], _OFFSETS[c27, 2]
+            # skip a cell no triangle centred in it can reach within ``reach``
+            ex = lx if dx < 0 else (ux if dx > 0 else 0.0)
+            ey = ly if dy < 0 else (uy if dy > 0 else 0.0)
+            ez = lz if dz < 0 else (uz if dz > 0 else 0.0)
+            lim = rmax + reach
+            if ex * ex + ey * ey + ez * ez > lim * lim:
+                continue
             k = o * size + _cell_hash(ix + dx, iy + dy, iz + dz, size)
             for b in range(counts[k], counts[k + 1]):
                 # bounding sphere: skip unless |p - g| < r_b + reach (no sqrt)

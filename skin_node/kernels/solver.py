@@ -1,11 +1,10 @@
 """Loops that apply the constraint functions over index arrays.
 
 The Gauss-Seidel sweep visits constraints in the order of the active index
-arrays. When those arrays are sorted by graph colour (no two constraints of a
-colour share a vertex), each colour's range can run in parallel without
-races: ``colours`` holds the range boundaries per constraint type, and the
-parallel driver splits each colour over the threads. With a single colour
-spanning everything the driver is plain sequential Gauss-Seidel.
+arrays. When those arrays are split into parts that share no vertex, plus a
+separator of the constraints that straddle parts, each part runs on its own
+thread without races and the separator after them: still Gauss-Seidel, in a
+fixed order, so the result does not depend on the thread count's timing.
 """
 from __future__ import annotations
 
@@ -99,19 +98,17 @@ def _range(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, lo, hi, k,
 
 
 @nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
-def _parallel(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha,
-              nchunk):
-    # One colour per (bounds[c], bounds[c+1]) range; chunks of a colour run in parallel.
-    for c in range(bounds.shape[0] - 1):
-        lo, hi = bounds[c], bounds[c + 1]
-        n = hi - lo
-        if n <= 0:
-            continue
-        nch = nchunk if n >= 64 * nchunk else 1
-        for h in nb.prange(nch):
-            dp = np.zeros((4, 3))
-            _range(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx,
-                   lo + (n * h) // nch, lo + (n * (h + 1)) // nch, k, alpha, dp)
+def _parallel(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha):
+    # Parts (bounds[h], bounds[h+1]) for h < P share no vertex: one thread each.
+    # The last range, the separator, touches several parts and runs after them.
+    P = bounds.shape[0] - 2
+    for h in nb.prange(P):
+        dp = np.zeros((4, 3))
+        _range(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds[h],
+               bounds[h + 1], k, alpha, dp)
+    dp = np.zeros((4, 3))
+    _range(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds[P], bounds[P + 1],
+           k, alpha, dp)
 
 
 @nb.njit(cache=True, nogil=True, fastmath=FAST)
@@ -122,15 +119,20 @@ def _sequential(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bound
 
 
 def sweep(kind: int, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha,
-          threads: int) -> None:
+          threads: int = 1) -> None:
     """One Gauss-Seidel sweep of one constraint type over ``idx``: 0 stretch,
-    1 volume, 2 energy or 3 bind. Parallel over colours when ``threads > 1``.
+    1 volume, 2 energy or 3 bind.
 
-    ``rest`` (1-D) holds the rest values of stretch, volume or bind constraints,
-    ``erest`` (t,4) the energy springs' rest lengths."""
-    if threads > 1 and bounds.shape[0] > 2:
-        _parallel(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha,
-                  threads)
+    ``bounds`` splits ``idx``: with two entries it is one sequential range;
+    with ``P + 2`` entries the first ``P`` ranges are vertex-disjoint parts,
+    swept in parallel when ``threads > 1``, and the last is the separator
+    between them, swept after (see :func:`skin_node.stages.pbd.partition`).
+    Sequentially the parts run one after the other, which gives the same
+    result: they share no vertex. ``rest`` (1-D) holds
+    the rest values of stretch, volume or bind constraints, ``erest`` (t,4)
+    the energy springs' rest lengths."""
+    if threads > 1 and bounds.shape[0] > 3:
+        _parallel(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha)
     else:
         _sequential(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha)
 
@@ -205,13 +207,13 @@ def dqs(V, Widx, Wval, Q, out):
         out[i, 0], out[i, 1], out[i, 2] = rx + px, ry + py, rz + pz
 
 
-@nb.njit(cache=True, nogil=True, fastmath=FAST)
+@nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
 def embed_update(base, X, Xbase, Etet, Ebary, verts, out):
     """Surface = its own stage-1 result plus the barycentric interpolation of
     the tet mesh's correction: ``out_i = base_i + sum_a b_ia (X - Xbase)[t_ia]``
     for ``i`` in ``verts`` (the vertices embedded in tets the solve touched).
     Surface detail finer than the tets is therefore kept."""
-    for k in range(verts.shape[0]):
+    for k in nb.prange(verts.shape[0]):
         i = verts[k]
         for d in range(3):
             s = base[i, d]
@@ -221,7 +223,7 @@ def embed_update(base, X, Xbase, Etet, Ebary, verts, out):
             out[i, d] = s
 
 
-@nb.njit(cache=True, nogil=True, fastmath=FAST)
+@nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
 def laplacian_smooth(X, verts, ptr, nbr, k, iterations, buf):
     """Jacobi Laplacian smoothing of ``verts`` only, in place:
     ``p <- (1-k) p + k mean(one ring)``, ``iterations`` times.
@@ -229,7 +231,7 @@ def laplacian_smooth(X, verts, ptr, nbr, k, iterations, buf):
     ``ptr``/``nbr`` is the one-ring adjacency in CSR form; ``buf``
     (len(verts), 3) scratch. Vertices outside ``verts`` are read but never moved."""
     for _ in range(iterations):
-        for a in range(verts.shape[0]):
+        for a in nb.prange(verts.shape[0]):
             i = verts[a]
             lo, hi = ptr[i], ptr[i + 1]
             sx = sy = sz = 0.0
@@ -242,7 +244,7 @@ def laplacian_smooth(X, verts, ptr, nbr, k, iterations, buf):
             buf[a, 0] = (1.0 - k) * X[i, 0] + c * sx
             buf[a, 1] = (1.0 - k) * X[i, 1] + c * sy
             buf[a, 2] = (1.0 - k) * X[i, 2] + c * sz
-        for a in range(verts.shape[0]):
+        for a in nb.prange(verts.shape[0]):
             i = verts[a]
             X[i, 0], X[i, 1], X[i, 2] = buf[a, 0], buf[a, 1], buf[a, 2]
 

@@ -1,6 +1,7 @@
 """Post-processing: skin passing through skin in the joint regions."""
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from ..kernels.collision import (carried_normals, crossed_vertices, halfspace_project,
@@ -94,7 +95,7 @@ class JointRegions:
             v, side = v[sub], side[sub]
         return crossed_vertices(X, X0, F, v, side, t, self.tside[j], tn,
                                 A, B, self.R[j], 3.0 * self.edge, 0.5 * rad,
-                                max(3.0 * self.edge, 0.25 * rad))
+                                max(3.0 * self.edge, 0.25 * rad), numba.get_num_threads())
 
     def ring(self, j: int, sub: np.ndarray) -> np.ndarray:
         """Positions into ``verts[j]`` of ``sub`` and its one-ring neighbours in the region."""
