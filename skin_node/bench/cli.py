@@ -178,8 +178,8 @@ def markdown_table(runs: list, clips: dict | None = None) -> str:
         else f"{v:.{d}f}"  # noqa: E731
     lines = ["| method | scene | clip | ms p50 / p90 | volume at deepest bend | joint region "
              "at deepest bend / worst error | collapse / bulge (mm) | crossings (max) | "
-             "distance to reference (mm, mean / max) |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "distance to reference (mm, mean / max) | jitter (mm, median / max) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for s in rows:
         lines.append(
             f"| {s['method']} | {s['scene']} | {s['motion']} ({f(s['deepest_angle_deg'], 0)} deg) | "
@@ -187,7 +187,8 @@ def markdown_table(runs: list, clips: dict | None = None) -> str:
             f"{f(s['volume_ratio_deepest'], 3)} | {f(s['region_volume_ratio_deepest'], 3)} / "
             f"{f(100 * s['region_volume_error_max'], 1)}% | "
             f"{f(s['collapse_mm'], 1)} / {f(s['bulge_mm'], 1)} | "
-            f"{f(s['crossings_max'], 0)} | {f(s['ref_mean_mm'], 2)} / {f(s['ref_max_mm'], 1)} |")
+            f"{f(s['crossings_max'], 0)} | {f(s['ref_mean_mm'], 2)} / {f(s['ref_max_mm'], 1)} | "
+            f"{f(s.get('jitter_mm_p50'), 1)} / {f(s.get('jitter_mm_max'), 1)} |")
     return "\n".join(lines)
 
 
