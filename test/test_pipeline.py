@@ -256,3 +256,23 @@ def test_two_thread_solve_splits_into_slabs_that_share_no_vertex(arm):
     numba.set_num_threads(1)
     assert np.abs(out[0] - out[1]).max() < 1e-12
     assert np.abs(out[0] - fr.tet_base).max() > 1e-4
+
+
+def test_default_skin_depends_on_the_pose_alone(arm):
+    """Started from stage 1 every frame, the default pipeline gives one pose the
+    same skin whatever came before it (a DCC scrubbing back and forth, a bag
+    replayed from the middle). Warm-started, the history shows."""
+    target = arm.pose(elbow_rz=np.radians(130), wrist_rx=np.radians(40))
+    before = [arm.pose(elbow_rz=np.radians(a)) for a in (30, 90, 150, 170)]
+
+    def after(history, **params):
+        pipe = Pipeline(arm, **params)
+        for q in history:
+            pipe.deform(q)
+        return pipe.deform(target)
+
+    fresh = after([])
+    assert np.abs(after(before) - fresh).max() < 1e-9
+    assert np.abs(after(before[::-1]) - fresh).max() < 1e-9
+    warm = np.abs(after(before, warm_start=True) - after([], warm_start=True)).max()
+    assert warm > 1e-4, warm
