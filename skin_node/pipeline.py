@@ -122,7 +122,7 @@ PIPELINE_PARAMS = {
     "active_fade": ParamSpec(float, 0.2, 1e-3, 3.2, "corrections fade in over this much rotation "
                              "past the threshold (rad), so nothing pops"),
     "threads": ParamSpec(int, 1, 1, 64, "threads of the numba kernels and of the solve, split "
-                         "into that many slabs (2: 12.6 against 16.1 ms on the humanoid walk, "
+                         "into that many slabs (2: 11.8 against 15.2 ms on the humanoid walk, "
                          "but the slabs reorder the one-iteration solve)"),
     "self_collision": ParamSpec(bool, True, description="run the collision stage"),
     "collision_angle": ParamSpec(float, 1.0, 0.0, 3.2, "joints bent less than this (rad) cannot "

@@ -26,16 +26,24 @@ def partition(idx: np.ndarray, members: np.ndarray, part: np.ndarray, parts: int
     return np.ascontiguousarray(idx[order], dtype=np.int64), bounds
 
 
-def slabs(X: np.ndarray, weight: np.ndarray, parts: int) -> np.ndarray:
-    """Per point, its slab 0..parts-1 along the axis of ``X``'s largest spread,
-    cut at quantiles of ``weight`` (how many constraints a point carries), so
-    every thread gets about the same work."""
-    axis = int(np.argmax(np.ptp(X[weight > 0], axis=0)))
-    x = X[:, axis]
-    order = np.argsort(x)
-    cum = np.cumsum(weight[order])
-    cuts = x[order][np.searchsorted(cum, cum[-1] * np.arange(1, parts) / parts)]
-    return np.searchsorted(cuts, x, side="right").astype(np.int64)
+def slabs(X: np.ndarray, T: np.ndarray, parts: int) -> np.ndarray:
+    """Per point of ``X`` (the tet mesh's vertices, tets ``T``), its slab
+    0..parts-1: cut along the axis whose cuts the fewest tets straddle (the
+    separator, swept on one thread), at quantiles of how many tets each vertex
+    is in, so every thread gets about the same work."""
+    weight = np.bincount(T.ravel(), minlength=len(X)).astype(np.float64)
+    best, best_n = None, None
+    for axis in range(X.shape[1]):
+        x = X[:, axis]
+        order = np.argsort(x)
+        cum = np.cumsum(weight[order])
+        cuts = x[order][np.searchsorted(cum, cum[-1] * np.arange(1, parts) / parts)]
+        part = np.searchsorted(cuts, x, side="right").astype(np.int64)
+        p = part[T]
+        n = int((p != p[:, :1]).any(axis=1).sum())
+        if best_n is None or n < best_n:
+            best, best_n = part, n
+    return best
 
 
 class PBD(Stage):
@@ -177,13 +185,11 @@ class PBD(Stage):
         vert = np.flatnonzero(vmask)
         w = np.where(vmask, self.w_all, 0.0)       # zone borders are pinned to stage 1
         if parts > 1:
-            # Slabs of the whole tet mesh, balanced by the tets each vertex is in, and
-            # the same for every bent set: a joint entering the solve then adds its
-            # constraints without reordering the others. The order differs from one
-            # thread's (index order), and a one-iteration result depends on the order:
-            # up to 3 cm in the armpits of the humanoid's walk, one more hip crossing.
-            part = self._slabs.get(parts, lambda: slabs(
-                r.TV, np.bincount(r.T.ravel(), minlength=len(r.TV)).astype(np.float64), parts))
+            # Slabs of the whole tet mesh, the same for every bent set: a joint entering
+            # the solve then adds its constraints without reordering the others. The
+            # order differs from one thread's (index order), and a one-iteration result
+            # depends on it (up to 3 cm in the armpits of the humanoid's walk).
+            part = self._slabs.get(parts, lambda: slabs(r.TV, r.T, parts))
             sets = {STRETCH: partition(edge, r.E, part, parts),
                     VOLUME: partition(tet, r.T, part, parts),
                     BIND: partition(vert, np.arange(len(r.TV))[:, None], part, parts)}
