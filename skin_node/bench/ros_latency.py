@@ -32,8 +32,9 @@ def _command() -> list:
 
 def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str = "humanoid",
                     surface_vertices: int = 24000, domain: int | None = None,
-                    ready_timeout: float = 300.0) -> dict:
-    """Run the node and measure it; see the module docstring. Returns a dict."""
+                    ready_timeout: float = 300.0, params: list | None = None) -> dict:
+    """Run the node and measure it; see the module docstring. Returns a dict.
+    ``params``: more node parameters as ``name:=value`` (``threads:=2``)."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
@@ -51,8 +52,9 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     ch = load_character(character, surface_vertices=surface_vertices, progress=False)
     clip = make_clip("walk" if character == "humanoid" else "elbow_bend", ch.skeleton)
     log = tempfile.NamedTemporaryFile("w+", suffix=".log", delete=False)
+    extra = [a for p in (params or []) for a in ("-p", p)]
     proc = subprocess.Popen(_command() + ["--ros-args", "-p", f"character:={character}",
-                                          "-p", f"surface_vertices:={surface_vertices}"],
+                                          "-p", f"surface_vertices:={surface_vertices}"] + extra,
                             stdout=log, stderr=subprocess.STDOUT, env=env)
     rclpy.init()
     node = rclpy.create_node("skin_bench_latency")
@@ -128,7 +130,7 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
             "skipped_stale": int(diag.get("frames_skipped_stale", -1)),
             "node_received": int(diag.get("frames_received", -1)),
             "node_ms_per_frame": float(diag.get("ms_per_frame", "nan")),
-            "domain_id": domain}
+            "domain_id": domain, "params": list(params or [])}
 
 
 def main(argv: list | None = None) -> int:
@@ -139,8 +141,14 @@ def main(argv: list | None = None) -> int:
     ap.add_argument("--surface-vertices", type=int, default=24000)
     ap.add_argument("--domain", type=int, default=None, help="ROS_DOMAIN_ID (default: from pid)")
     ap.add_argument("--out", default="", help="write the result as JSON here")
+    ap.add_argument("--param", action="append", default=[], metavar="NAME:=VALUE",
+                    help="a node parameter, e.g. --param threads:=2 (repeatable)")
     a = ap.parse_args(argv)
-    res = measure_latency(a.seconds, a.rate, a.character, a.surface_vertices, a.domain)
+    bad = [p for p in a.param if ":=" not in p]
+    if bad:
+        ap.error(f"--param takes NAME:=VALUE, got {bad}")
+    res = measure_latency(a.seconds, a.rate, a.character, a.surface_vertices, a.domain,
+                          params=a.param)
     text = json.dumps(res, indent=1)
     if a.out:
         with open(a.out, "w") as f:
