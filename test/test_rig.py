@@ -1,4 +1,4 @@
-"""The rig: lattice tets, embedding, edges, colouring, weights, cache, parameters."""
+"""The rig: lattice tets, embedding, edges, weights, cache, parameters."""
 from dataclasses import fields
 
 import numpy as np
@@ -10,7 +10,7 @@ from skin_node.character import load_character
 from skin_node.metrics import mesh_volume
 from skin_node.pipeline import PIPELINE_PARAMS, ParamSpec, Pipeline
 from skin_node.rigging.build import Rig
-from skin_node.rigging.tetra import greedy_colour, lattice_tets, signed_volumes, tet_edges
+from skin_node.rigging.tetra import lattice_tets, signed_volumes, tet_edges
 from skin_node.rigging.weights import (bone_distances, inverse_distance_weights, joint_regions,
                                        point_segment_distance)
 from skin_node.skeleton import Skeleton
@@ -99,30 +99,6 @@ def test_tet_edges_unique_and_complete(arm):
     all_pairs = np.sort(T[:, [[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]]].reshape(-1, 2), 1)
     assert {tuple(e) for e in all_pairs.tolist()} == {tuple(e) for e in E.tolist()}
     assert np.array_equal(E, arm.rig.E)
-
-
-def assert_valid_colouring(C, colour):
-    assert colour.shape == (len(C),) and colour.min() >= 0
-    for c in np.unique(colour):
-        v = C[colour == c].ravel()
-        assert len(np.unique(v)) == len(v), f"colour {c} shares a vertex"
-
-
-def test_greedy_colour_is_valid(arm):
-    r = arm.rig
-    for C, stored in ((r.T, r.tcol), (r.E, r.ecol)):
-        col = greedy_colour(C, len(r.TV))
-        assert np.array_equal(col, stored)
-        assert_valid_colouring(C, col)
-        assert col.max() < 63
-    rng = np.random.default_rng(0)
-    C = np.array([rng.choice(40, 4, replace=False) for _ in range(300)])
-    col = greedy_colour(C, 40)
-    assert_valid_colouring(C, col)
-    # greedy: every constraint's colour is taken by an earlier neighbour below it
-    for i in range(len(C)):
-        earlier = [col[j] for j in range(i) if set(C[j]) & set(C[i])]
-        assert all(k in earlier for k in range(col[i]))
 
 
 # ============================================================ weights

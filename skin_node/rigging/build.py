@@ -1,5 +1,5 @@
 """Once per character: tet mesh, embedding, regions, weights, constraint rest
-values and colourings, gathered in a :class:`Rig` and cached on disk."""
+values, gathered in a :class:`Rig` and cached on disk."""
 from __future__ import annotations
 
 import hashlib
@@ -13,10 +13,10 @@ import numpy as np
 
 from ..metrics import mesh_volume
 from ..skeleton import Skeleton
-from .tetra import greedy_colour, lattice_for_count, signed_volumes, tet_edges
+from .tetra import lattice_for_count, signed_volumes, tet_edges
 from .weights import bone_distances, inverse_distance_weights, joint_radii, joint_regions
 
-RIG_VERSION = 6
+RIG_VERSION = 7
 
 
 @dataclass
@@ -64,7 +64,7 @@ class Rig:
     Tets (k vertices, t tets, e edges): ``TV`` (k,3), ``T`` (t,4), ``E`` (e,2),
     ``TWidx, TWval`` (k,3), ``mass`` (k,), ``vol0`` (t,), ``len0`` (e,),
     ``erest`` (t,4) energy spring rest lengths, ``bseg, brest`` (k,) bind
-    segment and rest distance, ``zone`` (k,J) bool, ``tcol, ecol`` colours.
+    segment and rest distance, ``zone`` (k,J) bool.
     Joints: ``radius``, ``threshold`` (J,).
     """
 
@@ -88,8 +88,6 @@ class Rig:
     bseg: np.ndarray
     brest: np.ndarray
     zone: np.ndarray
-    tcol: np.ndarray
-    ecol: np.ndarray
     radius: np.ndarray
     threshold: np.ndarray
     cube: np.ndarray
@@ -282,14 +280,12 @@ def build_rig(V: np.ndarray, F: np.ndarray, skel: Skeleton, opt: RigOptions,
     bseg = np.argmin(Ds, axis=1)
     brest = Ds[np.arange(len(TV)), bseg]
     zone = weight_zones(TWidx, TWval, skel, opt.zone_weight)
-    tcol = greedy_colour(T, len(TV))
-    ecol = greedy_colour(E, len(TV))
     adj_ptr, adj = one_ring(F, n)
-    steps(f"constraints: {len(E)} edges, {int(tcol.max()) + 1} tet colours")
+    steps(f"constraints: {len(T)} tets, {len(E)} edges")
     return Rig(Widx=Widx, Wval=Wval, region=region, Etet=Etet, Ebary=Ebary, adj_ptr=adj_ptr,
                adj=adj, TV=TV, T=T, E=E, TWidx=TWidx, TWval=TWval, tregion=tregion, mass=mass,
                vol0=vol0, len0=len0, erest=erest, bseg=bseg.astype(np.int64), brest=brest,
-               zone=zone, tcol=tcol, ecol=ecol, radius=radius, threshold=threshold,
+               zone=zone, radius=radius, threshold=threshold,
                cube=np.array(cube))
 
 

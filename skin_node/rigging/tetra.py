@@ -206,22 +206,3 @@ def signed_volumes(X: np.ndarray, T: np.ndarray) -> np.ndarray:
     """(t,) ``(1/6) [(p1 - p2) x (p1 - p3)] . (p1 - p4)`` of every tet."""
     p1, p2, p3, p4 = (X[T[:, a]] for a in range(4))
     return np.einsum("ij,ij->i", np.cross(p1 - p2, p1 - p3), p1 - p4) / 6.0
-
-
-@nb.njit(cache=True)
-def greedy_colour(C: np.ndarray, n_vertices: int) -> np.ndarray:
-    """Colour constraints (rows of vertex indices) so no two of a colour share a vertex."""
-    used = np.zeros(n_vertices, dtype=np.uint64)
-    colour = np.empty(C.shape[0], dtype=np.int64)
-    for c in range(C.shape[0]):
-        m = np.uint64(0)
-        for a in range(C.shape[1]):
-            m |= used[C[c, a]]
-        k = 0
-        while k < 63 and (m >> np.uint64(k)) & np.uint64(1):
-            k += 1
-        colour[c] = k
-        bit = np.uint64(1) << np.uint64(k)
-        for a in range(C.shape[1]):
-            used[C[c, a]] |= bit
-    return colour
