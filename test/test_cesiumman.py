@@ -154,14 +154,20 @@ def test_no_nan_and_no_more_crossings_than_lbs(acceptance, weights, clip):
     assert r["ours"] <= r["lbs"], r
 
 
-@pytest.mark.xfail(strict=True, reason=(
+NOT_YET = pytest.mark.xfail(strict=True, reason=(
     "measured on the frames above, most-bent joint's region volume / rest: automatic weights "
-    "walk 0.85-1.00, punch 0.92-0.93; file weights walk 0.56-0.93, punch 0.964-0.968. The "
-    "shoulder regions hold 11 to 14 vertices, the solve on CesiumMan's coarse tets takes a "
-    "third of their volume, and they sit within the torso's flesh radius, where the volume "
-    "stage may not move skin (it would cross the torso): not yet within 3%"))
-@pytest.mark.parametrize("weights", ["automatic", "file"])
-@pytest.mark.parametrize("clip", list(CLIPS))
+    "punch 0.935-0.942 (the elbow at 102 degrees), file weights walk 0.66-0.98 (the shoulder "
+    "at 70 degrees). The shoulder region holds 14 vertices, the solve on CesiumMan's coarse "
+    "tets takes a fifth of its volume (DQS alone keeps 0.97), and its skin sits within the "
+    "torso's flesh radius, where the volume stage may not move it (it would cross the "
+    "torso): not yet within 3%"))
+
+
+@pytest.mark.parametrize("weights,clip", [
+    ("automatic", "walk"),
+    pytest.param("automatic", "punch", marks=NOT_YET),
+    pytest.param("file", "walk", marks=NOT_YET),
+    ("file", "punch")])
 def test_joint_region_volume_within_3_percent(acceptance, weights, clip):
     ratio = np.array(acceptance[(weights, clip)]["ratio"])
     assert np.all(np.abs(ratio - 1.0) <= 0.03), (ratio.min(), ratio.max())
