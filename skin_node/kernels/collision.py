@@ -134,7 +134,6 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, 
     keep = np.empty(nt, dtype=np.int64)
     cen = np.empty((nt, 4))
     nk = 0
-    rmax = 0.0
     for a in range(nt):
         f = tris[a]
         i0, i1, i2 = F[f, 0], F[f, 1], F[f, 2]
@@ -152,7 +151,6 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, 
             continue
         keep[nk] = a
         cen[nk, 0], cen[nk, 1], cen[nk, 2], cen[nk, 3] = gx, gy, gz, r
-        rmax = max(rmax, r)
         nk += 1
     if nk == 0:
         return out
@@ -193,13 +191,13 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, 
     # Vertices are independent: deal them out to the threads in turn (the
     # candidates cluster, so contiguous halves would not balance).
     for t in nb.prange(nth):
-        _crossed_range(X, X0, F, verts, vside, segA, segB, R, rest_tol, h, size, rmax, sep2,
+        _crossed_range(X, X0, F, verts, vside, segA, segB, R, rest_tol, h, size, sep2,
                        counts, items, inorm, geo, t, nth, out)
     return out
 
 
 @nb.njit(cache=True, nogil=True, fastmath=FAST)
-def _crossed_range(X, X0, F, verts, vside, segA, segB, R, rest_tol, h, size, rmax, sep2,
+def _crossed_range(X, X0, F, verts, vside, segA, segB, R, rest_tol, h, size, sep2,
                    counts, items, inorm, geo, first, step, out):
     """The per-vertex test of :func:`crossed_vertices` for ``verts[first::step]``."""
     for a in range(first, verts.shape[0], step):
@@ -209,24 +207,13 @@ def _crossed_range(X, X0, F, verts, vside, segA, segB, R, rest_tol, h, size, rma
         dbone = seg_dist(px, py, pz, segA[o], segB[o])
         if dbone > R[o]:
             continue
-        fx, fy, fz = px / h, py / h, pz / h
-        ix, iy, iz = int(math.floor(fx)), int(math.floor(fy)), int(math.floor(fz))
-        # distance from p to the low and high faces of its own cell
-        lx, ly, lz = (fx - ix) * h, (fy - iy) * h, (fz - iz) * h
-        ux, uy, uz = h - lx, h - ly, h - lz
+        ix, iy, iz = int(math.floor(px / h)), int(math.floor(py / h)), int(math.floor(pz / h))
         best, best_d, best_in, best_b = -1, h * h, False, -1
         reach = h                                  # sqrt(best_d)
         for c27 in range(27):
             # the vertex's own cell first: an early near hit lets the bounding-sphere
             # test reject most triangles of the other cells
             dx, dy, dz = _OFFSETS[c27, 0], _OFFSETS[c27, 1], _OFFSETS[c27, 2]
-            # skip a cell no triangle centred in it can reach within ``reach``
-            ex = lx if dx < 0 else (ux if dx > 0 else 0.0)
-            ey = ly if dy < 0 else (uy if dy > 0 else 0.0)
-            ez = lz if dz < 0 else (uz if dz > 0 else 0.0)
-            lim = rmax + reach
-            if ex * ex + ey * ey + ez * ez > lim * lim:
-                continue
             k = o * size + _cell_hash(ix + dx, iy + dy, iz + dz, size)
             for b in range(counts[k], counts[k + 1]):
                 # bounding sphere: skip unless |p - g| < r_b + reach (no sqrt)
