@@ -127,8 +127,8 @@ PIPELINE_PARAMS = {
     "active_fade": ParamSpec(float, 0.2, 1e-3, 3.2, "corrections fade in over this much rotation "
                              "past the threshold (rad), so nothing pops"),
     "threads": ParamSpec(int, 1, 1, 64, "threads of the numba kernels and of the solve, split "
-                         "into that many slabs (2: 11.8 against 15.2 ms on the humanoid walk, "
-                         "but the slabs reorder the one-iteration solve)"),
+                         "into that many slabs (2: 10.9 against 14.3 ms on the humanoid walk, "
+                         "but slower through ROS, and the slabs reorder the solve)"),
     "self_collision": ParamSpec(bool, True, description="run the collision stage"),
     "collision_angle": ParamSpec(float, 1.0, 0.0, 3.2, "joints bent less than this (rad) cannot "
                                  "fold skin onto skin and are not checked"),
