@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from skin_node.bench import cli
-from skin_node.bench.measure import (Method, SceneMetrics, inverted_tets, load_scene,
+from skin_node import Pipeline
+from skin_node.bench.measure import (Method, SceneMetrics, inverted_tets, jitter, load_scene,
                                      make_motion, parse_method, parse_scene, run_method,
                                      segment_distance)
 from skin_node.bench.stability import CASES, case_frames, stability_map
@@ -100,11 +101,32 @@ def test_run_method_summary(arm):
     s = r.summary
     for k in ("ms_total_p50", "ms_total_p90", "ms_pbd_p50", "setup_s", "warmup_s",
               "volume_ratio_deepest", "collapse_mm", "bulge_mm", "crossings_max", "ref_mean_mm",
-              "region_volume_ratio_deepest", "roughness_mm_max"):
+              "region_volume_ratio_deepest", "roughness_mm_max", "jitter_mm_p50",
+              "jitter_mm_max"):
         assert k in s and np.isfinite(s[k]), k
     assert s["frames"] == len(mo.frames) and s["ms_total_p90"] >= s["ms_total_p50"] > 0
     assert s["deepest_angle_deg"] > 140
     assert 0.9 < s["volume_ratio_deepest"] < 1.1
+
+
+def test_jitter_reads_a_flicker(arm):
+    """The jitter measure: zero for a pipeline that adds nothing to its stage 1,
+    and the size of a correction that flips sign every frame."""
+    frames = make_motion("elbow_bend", arm).dense[:6]
+    dqs = Pipeline(arm, ["dqs"])
+    assert np.all(jitter(Pipeline(arm, ["dqs"]), dqs, frames) == 0.0)
+
+    class Flicker:                     # stage 1 plus 2 mm along x, then minus, ...
+        sign = 1.0
+
+        def deform(self, q):
+            self.sign = -self.sign
+            V = dqs.deform(q)
+            V[:, 0] += self.sign * 2e-3
+            return V
+
+    j = jitter(Flicker(), Pipeline(arm, ["dqs"]), frames)
+    assert len(j) == 5 and np.allclose(j, 4.0)
 
 
 def test_pose_sweeps_and_cases(arm):
