@@ -128,9 +128,10 @@ def sweep(kind: int, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds
     swept in parallel when ``threads > 1``, and the last is the separator
     between them, swept after (see :func:`skin_node.stages.pbd.partition`).
     Sequentially the parts run one after the other, which gives the same
-    result: they share no vertex. ``rest`` (1-D) holds
-    the rest values of stretch, volume or bind constraints, ``erest`` (t,4)
-    the energy springs' rest lengths."""
+    result: they share no vertex.
+
+    ``rest`` (1-D) holds the rest values of stretch, volume or bind
+    constraints, ``erest`` (t,4) the energy springs' rest lengths."""
     if threads > 1 and bounds.shape[0] > 3:
         _parallel(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds, k, alpha)
     else:

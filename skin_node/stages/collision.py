@@ -218,13 +218,13 @@ class Collision(Stage):
             self.params["collision_halfspace"]
         for j in list(joints) + siblings + parents:
             plane, planar = None, j in joints
-            posed = regs.posed(j, fr.M)
             sub = None
             if j in parents:
                 sub = self._moved.get((j, folded.tobytes()), lambda: np.flatnonzero(
                     self._szone[regs.verts[j]][:, list(joints)].any(axis=1)))
                 if not len(sub):
                     continue
+            posed = regs.posed(j, fr.M)
             if upfront and planar:
                 # The bisector does not depend on where the skin crossed, so the
                 # half-space projection needs no detection pass before it.
