@@ -153,6 +153,11 @@ PIPELINE_PARAMS = {
                                   "most any skin moves to give a region its volume back, in "
                                   "limb radii of the joint, up to a right angle; falling to "
                                   "0 at a full fold"),
+    "volume_checked_below": ParamSpec(float, 0.01, 0.0, 1.0, "with volume_regions 'joints': "
+                                      "a region still this far below its rest volume may "
+                                      "also swell skin near the other side's flesh, keeping "
+                                      "only moves that cross no skin (checked like the "
+                                      "collision stage); 1 turns the check off"),
     "smoothing": ParamSpec(float, 0.5, 0.0, 1.0, "Laplacian smoothing strength k"),
     "smoothing_iterations": ParamSpec(int, 4, 0, 50, "Laplacian smoothing passes"),
     "smooth_mode": ParamSpec(str, "displacement", description="'position' (the paper: smooth "

@@ -154,20 +154,8 @@ def test_no_nan_and_no_more_crossings_than_lbs(acceptance, weights, clip):
     assert r["ours"] <= r["lbs"], r
 
 
-NOT_YET = pytest.mark.xfail(strict=True, reason=(
-    "measured on the frames above, most-bent joint's region volume / rest: automatic weights "
-    "punch 0.935-0.942 (the elbow at 102 degrees), file weights walk 0.66-0.98 (the shoulder "
-    "at 70 degrees). The shoulder region holds 14 vertices, the solve on CesiumMan's coarse "
-    "tets takes a fifth of its volume (DQS alone keeps 0.97), and its skin sits within the "
-    "torso's flesh radius, where the volume stage may not move it (it would cross the "
-    "torso): not yet within 3%"))
-
-
 @pytest.mark.parametrize("weights,clip", [
-    ("automatic", "walk"),
-    pytest.param("automatic", "punch", marks=NOT_YET),
-    pytest.param("file", "walk", marks=NOT_YET),
-    ("file", "punch")])
+    ("automatic", "walk"), ("automatic", "punch"), ("file", "walk"), ("file", "punch")])
 def test_joint_region_volume_within_3_percent(acceptance, weights, clip):
     ratio = np.array(acceptance[(weights, clip)]["ratio"])
     assert np.all(np.abs(ratio - 1.0) <= 0.03), (ratio.min(), ratio.max())

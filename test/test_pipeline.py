@@ -133,6 +133,35 @@ def test_no_skin_crossings_after_collision(case, arm, humanoid):
     assert count_crossings(V, ch.V, ch.F, no_col.last_frame.M, regions) > 0
 
 
+@pytest.mark.parametrize("case", ["arm", "humanoid"])
+def test_checked_swell_gives_a_folded_region_its_volume_without_crossings(case, arm, humanoid):
+    """Past its guards the volume stage also swells skin near the other side's
+    flesh, and keeps only the moves that cross no skin: at a 150 degree fold
+    the region gets most of what the guards alone leave missing, with no new
+    crossing anywhere."""
+    from skin_node.metrics import region_volume
+    ch = arm if case == "arm" else humanoid
+    name = "elbow" if case == "arm" else "l_knee"
+    q = ch.pose(**{f"{name}_rz" if case == "arm" else f"{name}_ry": np.radians(150)})
+    j = ch.skeleton.index(name)
+    regions = JointRegions(ch)
+    rest = region_volume(ch.V, ch.F, regions.tris[j], ch.skeleton.rest_positions[j])
+
+    def measure(**params):
+        pipe = Pipeline(ch, **params)
+        V = pipe.deform(q)
+        fr = pipe.last_frame
+        return (region_volume(V, ch.F, regions.tris[j], fr.G[j, :3, 3]) / rest,
+                count_crossings(V, ch.V, ch.F, fr.M, regions))
+
+    guarded, guarded_crossings = measure(volume_checked_below=1.0)
+    checked, crossings = measure()
+    assert guarded < 0.9, guarded
+    assert checked > guarded + 0.05, (checked, guarded)
+    assert checked < 1.03, checked
+    assert crossings <= guarded_crossings, (crossings, guarded_crossings)
+
+
 def test_smooth_lowers_roughness_inside_region_only(arm):
     """The paper's smoothing (positions, joint region only)."""
     q = arm.pose(elbow_rz=np.radians(120))

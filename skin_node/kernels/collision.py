@@ -274,6 +274,27 @@ def near_points(X, verts, P, r):
 
 
 @nb.njit(cache=True, nogil=True)
+def in_box(X, verts, sub, P, r):
+    """The entries of ``sub`` (positions into ``verts``) whose vertex lies in the
+    bounding box of the points ``P`` grown by ``r``."""
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for b in range(P.shape[0]):
+        for d in range(3):
+            lo[d] = min(lo[d], P[b, d] - r)
+            hi[d] = max(hi[d], P[b, d] + r)
+    out = np.empty(sub.shape[0], dtype=np.int64)
+    n = 0
+    for a in range(sub.shape[0]):
+        i = verts[sub[a]]
+        if (lo[0] <= X[i, 0] <= hi[0] and lo[1] <= X[i, 1] <= hi[1]
+                and lo[2] <= X[i, 2] <= hi[2]):
+            out[n] = sub[a]
+            n += 1
+    return out[:n]
+
+
+@nb.njit(cache=True, nogil=True)
 def carried_normals(M, tri_bone, tri_normal, tris, out):
     """``out[a] = R(tri_bone[t]) n0[t]`` for ``t = tris[a]``: rest normals carried
     by each triangle's bone."""

@@ -19,8 +19,14 @@ within the other side's flesh radius of its bone, so resolved folds stay
 resolved and the volume reappears as a bulge on the outside of the bend. No
 skin moves farther than ``volume_max_bulge`` limb radii, less past a right
 angle (the cones of a deeply folded region overlap: that share was never
-flesh). Whatever the whole mesh then misses by more than 1% goes to the bent
-joints' zones around the folds, as in ``inside``.
+flesh). Those guards are cautious: skin within the other side's flesh radius
+can as well swell away from that flesh as into it. A region still more than
+``volume_checked_below`` short after them (a shoulder under a hanging arm, a
+knee past 120 degrees) swells all its mobile skin instead, is tested for skin
+crossings as the collision stage tests it, and puts back the skin around each
+new crossing: it keeps every move that crosses nothing. Whatever the whole
+mesh then misses by more than 1% goes to the bent joints' zones around the
+folds, as in ``inside``.
 ``inside`` / ``outside`` keep only the whole mesh's volume instead, moving
 the bent joints' zones with or without their joint regions.
 """
@@ -33,7 +39,7 @@ import numpy as np
 
 from ..metrics import mesh_volume, region_volume
 from .base import Frame, KeyedCache, Stage
-from ..kernels.collision import seg_dist
+from ..kernels.collision import in_box, near_points, seg_dist
 from .collision import JointRegions
 
 
@@ -166,18 +172,21 @@ def ring_distance(sources, ptr, nbr, hops, limit, queue):
 
 @nb.njit(cache=True, nogil=True)
 def restore_region(X, F, tris, c, verts, mob, side, fade, A, B, R, hops, ring_width, vol0,
-                   max_move, g, m, passes):
+                   max_move, g, m, passes, guarded):
     """Give joint region ``tris`` its rest volume ``vol0`` back (cone from the
     posed joint centre ``c``), moving ``verts`` along their normals by at most
-    ``max_move``. Mobility: ``mob * fade``, times a ramp from 0 within the other
-    side's flesh radius ``R`` of its bone (``A``-``B``) to 1 at 1.5 ``R``, times
-    ``min(1, hops / ring_width)`` (rings from skin in contact). Returns the
-    region's volume ratio after the ``passes`` projections, to first order."""
+    ``max_move``. Mobility: ``mob * fade``; with ``guarded``, times a ramp from 0
+    within the other side's flesh radius ``R`` of its bone (``A``-``B``) to 1 at
+    1.5 ``R``, times ``min(1, hops / ring_width)`` (rings from skin in contact).
+    Returns the region's volume ratio after the ``passes`` projections, to first
+    order."""
     mmax = 0.0
     for a in range(verts.shape[0]):
         i, o = verts[a], 1 - side[a]
-        ramp = flesh_ramp(seg_dist(X[i, 0], X[i, 1], X[i, 2], A[o], B[o]), R[o])
-        m[a] = mob[a] * fade * ramp * min(1.0, hops[i] / ring_width)
+        m[a] = mob[a] * fade
+        if guarded:
+            ramp = flesh_ramp(seg_dist(X[i, 0], X[i, 1], X[i, 2], A[o], B[o]), R[o])
+            m[a] *= ramp * min(1.0, hops[i] / ring_width)
         mmax = max(mmax, m[a])
     if vol0 == 0.0:
         return 1.0
@@ -293,6 +302,7 @@ class Volume(Stage):
             reached = ring_distance(src, self._ptr, self._adj, hops, self._hop_limit, self._queue)
         worst = 1.0
         cap = float(self.params["volume_max_bulge"])
+        checked = float(self.params["volume_checked_below"])
         regs = self.regions
         for j in js:
             v = self.rverts[j]
@@ -304,13 +314,77 @@ class Volume(Stage):
             # back would balloon the elbow. The allowance falls linearly from 90
             # degrees to nothing at 180.
             fold = min(1.0, max(0.0, (np.pi - fr.angles[j]) / (0.5 * np.pi)))
-            worst = min(worst, restore_region(
-                X, self.F, regs.tris[j], fr.G[j, :3, 3], v, self.rmob[j], self.rside[j],
-                fr.fade[j], A[j], B[j], regs.R[j], hops, self._ring_width[j], self.rvol0[j],
-                cap * fold * regs.radius[j], self._g, self._m, 2))
+            args = (X, self.F, regs.tris[j], fr.G[j, :3, 3], v, self.rmob[j], self.rside[j],
+                    fr.fade[j], A[j], B[j], regs.R[j], hops, self._ring_width[j],
+                    self.rvol0[j], cap * fold * regs.radius[j], self._g, self._m, 2)
+            ratio = restore_region(*args, True)
+            if ratio < 1.0 - checked and self.params["self_collision"]:
+                ratio = self._checked(fr, j, args, ratio, self._m[:len(v)].copy())
+            worst = min(worst, ratio)
         if reached:
             hops[self._queue[:reached]] = self._hop_limit
         fr.counts["region_volume_min"] = worst
+
+    def _checked(self, fr: Frame, j: int, args, ratio: float, guarded) -> float:
+        """Past the guards, where they leave region ``j`` short: skin within the
+        other side's flesh radius, or next to a resolved contact, may as well
+        swell away from that skin as into it. Move all of the region's mobile
+        skin, then test it for skin crossings as the collision stage does (where
+        the move can have changed them), and put back the skin around every new
+        crossing, over a growing radius, up to five times; if crossings remain,
+        the whole region goes back to what the guards left. Returns the region's
+        volume ratio."""
+        X, regs = fr.surface, self.regions
+        v = self.rverts[j]
+        keep = X[v].copy()
+        new = restore_region(*args, False)
+        # Only skin the guards held back moved further than they let it: only
+        # skin within the test's reach of where that was or is now can have
+        # changed (the reach: the detection cell and a stretched edge).
+        freed = self._m[:len(v)] > guarded + 1e-9
+        if not freed.any():
+            return new
+        reach = max(3.0 * regs.edge, 0.25 * regs.radius[j]) + 2.0 * regs.emax
+        sub = in_box(X, regs.verts[j], np.arange(len(regs.verts[j])),
+                     np.concatenate([X[v[freed]], keep[freed]]), reach)
+        posed = regs.posed(j, fr.M)
+        bad, tri = self._new_crossings(fr, j, sub, posed, v, keep)
+        for r in (1.5 * regs.edge, 3.0 * regs.edge, reach, reach, reach):
+            if not len(bad):
+                c = fr.G[j, :3, 3]
+                return region_volume_gradient(X, self.F, regs.tris[j], c[0], c[1], c[2],
+                                              self._g) / self.rvol0[j]
+            # Put back the skin near each new crossing, then or now, and the
+            # corners of the triangle it crosses; test again around it. The
+            # radius grows from a ring to the test's reach while crossings stay.
+            P = X[regs.verts[j][bad]]
+            back = np.union1d(near_points(X, v, P, r),
+                              near_points(keep, np.arange(len(v)), P, r))
+            corners = self.F[tri[tri >= 0]].ravel()
+            at = np.minimum(np.searchsorted(v, corners), len(v) - 1)
+            back = np.union1d(back, at[v[at] == corners])
+            if not len(back):
+                break
+            X[v[back]] = keep[back]
+            near = in_box(X, regs.verts[j], sub, X[v[back]], reach)
+            bad, tri = self._new_crossings(fr, j, near, posed, v, keep)
+        X[v] = keep
+        return ratio
+
+    def _new_crossings(self, fr: Frame, j: int, sub, posed, v, keep):
+        """Positions into ``regions.verts[j]``, among ``sub``, of the vertices that
+        cross skin now but did not with ``v`` at ``keep``, and the triangles they
+        cross (-2: none, deep in the other side's flesh)."""
+        regs, X, X0 = self.regions, fr.surface, self.character.V
+        hit = regs.crossed(X, X0, self.F, fr.M, j, sub, posed)
+        now = hit != -1
+        if not now.any():
+            return sub[now], hit[now]
+        moved = X[v].copy()
+        X[v] = keep
+        before = regs.crossed(X, X0, self.F, fr.M, j, sub[now], posed) != -1
+        X[v] = moved
+        return sub[now][~before], hit[now][~before]
 
     def _whole(self, fr: Frame, js, posed, slack: float = 0.0) -> None:
         """One constraint on the whole mesh's volume, moving the bent joints' zones;
