@@ -33,7 +33,7 @@ the callback, a skipped frame still updates the channels it carries.
 
 Parameter changes pass the set-parameters callback's checks and take effect
 at the start of the next frame; ``character``, ``surface_vertices``,
-``name_map`` and ``joint_names`` are read-only.
+``name_map``, ``weights`` and ``joint_names`` are read-only.
 """
 from __future__ import annotations
 
@@ -115,10 +115,12 @@ class SkinNode(Node):
         self._declare_parameters()
         p = lambda name: self.get_parameter(name).value  # noqa: E731
 
-        n, spec = p("surface_vertices"), p("character")
+        n, spec, weights = p("surface_vertices"), p("character"), p("weights")
+        if weights not in ("automatic", "file"):
+            raise ValueError(f"weights: '{weights}' is neither 'automatic' nor 'file'")
         try:
             self.character = skin_node.load_character(
-                spec, **({"surface_vertices": n} if n > 0 else {}))
+                spec, weights=weights, **({"surface_vertices": n} if n > 0 else {}))
         except ValueError:
             raise
         except Exception as e:  # noqa: BLE001 - whatever a reader raises, name the file
@@ -188,6 +190,10 @@ class SkinNode(Node):
                                                                 to_value=2_000_000, step=0)],
             description="target surface vertex count of a built-in character; "
                         "0 = the character's default"))
+        self.declare_parameter("weights", "automatic", ParameterDescriptor(
+            type=S, read_only=True,
+            description="skin weights: 'automatic' (computed from the mesh and skeleton) "
+                        "or 'file' (the artist's, from a skinned glTF character)"))
         self.declare_parameter("pipeline", list(skin_node.DEFAULT_STAGES), ParameterDescriptor(
             type=SA, description=f"stages in order, from {list(skin_node.STAGE_NAMES)}"))
         self.declare_parameter("frame_id", "world", ParameterDescriptor(

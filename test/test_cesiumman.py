@@ -123,22 +123,32 @@ def frames_of(clip: str, q: np.ndarray, ch) -> np.ndarray:
     return 1 + 4 * np.sort(np.argsort(bend)[-24:])          # the most-bent punch frames
 
 
-def run(ch, clip, q):
+def measures(ch, qs, outputs) -> dict:
+    """The acceptance measures of skinned ``outputs`` of the poses ``qs``: any NaN,
+    joint-region vertices through the skin against LBS's (summed over the
+    frames), and each frame's most-bent joint's region volume over rest."""
     regions = JointRegions(ch)
     skel = ch.skeleton
     rj = [j for j in range(skel.n_joints) if skel.parents[j] >= 0 and len(regions.tris[j])]
     rest = {j: region_volume(ch.V, ch.F, regions.tris[j], skel.rest_positions[j]) for j in rj}
-    lbs, ours = Pipeline.preset(ch, "lbs"), Pipeline(ch)
+    lbs = Pipeline.preset(ch, "lbs")
     out = {"nan": False, "lbs": 0, "ours": 0, "ratio": []}
-    for t in frames_of(clip, q, ch):
-        Vl, Vo = lbs.deform(q[t]), ours.deform(q[t])
-        fr = ours.last_frame
+    for q, Vo in zip(qs, outputs):
+        Vl = lbs.deform(q)
+        fr = lbs.last_frame                                     # the pose's M, G and angles
+        Vo = np.asarray(Vo, dtype=np.float64)
         out["nan"] |= not np.all(np.isfinite(Vo))
-        out["lbs"] += count_crossings(Vl, ch.V, ch.F, lbs.last_frame.M, regions)
+        out["lbs"] += count_crossings(Vl, ch.V, ch.F, fr.M, regions)
         out["ours"] += count_crossings(Vo, ch.V, ch.F, fr.M, regions)
         j = max(rj, key=lambda j: fr.angles[j])                 # the most-bent joint
         out["ratio"].append(region_volume(Vo, ch.F, regions.tris[j], fr.G[j, :3, 3]) / rest[j])
     return out
+
+
+def run(ch, clip, q):
+    ours = Pipeline(ch)
+    qs = [q[t] for t in frames_of(clip, q, ch)]
+    return measures(ch, qs, [ours.deform(x).copy() for x in qs])
 
 
 @pytest.fixture(scope="module")
@@ -159,3 +169,42 @@ def test_no_nan_and_no_more_crossings_than_lbs(acceptance, weights, clip):
 def test_joint_region_volume_within_3_percent(acceptance, weights, clip):
     ratio = np.array(acceptance[(weights, clip)]["ratio"])
     assert np.all(np.abs(ratio - 1.0) <= 0.03), (ratio.min(), ratio.max())
+
+
+@pytest.mark.parametrize("weights", ["automatic", "file"])
+def test_acceptance_through_the_node(tmp_path, weights, characters, motions):
+    """The same measures on what the node publishes: ``skin_node`` started as its
+    installed executable with CesiumMan, fed the walk's and the punch's frames
+    above from a bag (10 Hz, so none is skipped), its point clouds recorded."""
+    pytest.importorskip("rclpy")
+    import test_node_integration as node
+    from msg_adapters import point_cloud2_to_vertices
+    ch = characters[weights]
+    t0, dt = 1_700_000_000 * 10**9, 10**8
+    stream, poses = [], []
+    for clip in CLIPS:
+        q = motions[clip][2]
+        for t in frames_of(clip, q, ch):
+            stamp = t0 + len(stream) * dt
+            stream.append((stamp, node.joint_state(stamp, ch.channel_names, q[t])))
+            poses.append((clip, q[t]))
+    node.write_bag(tmp_path / "in", "mcap", stream)
+    with node.running_node(tmp_path, "-p", f"character:={CESIUMMAN}",
+                           "-p", f"weights:={weights}") as (proc, env, log):
+        node.play_and_record(env, tmp_path / "in", tmp_path / "out")
+        assert proc.poll() is None, "node died"
+    clouds, diag = node.read_outputs(tmp_path / "out")
+    assert [node.stamp_ns(c) for c in clouds] == [t for t, _ in stream]
+    assert int(diag["frames_skipped_stale"]) == 0 and int(diag["rejected_total"]) == 0
+    V = [point_cloud2_to_vertices(c) for c in clouds]
+    # the node runs this character's pipeline (its weights, the pose alone decides)
+    ours = Pipeline(ch)
+    for i in (0, len(V) - 1):
+        assert np.abs(V[i] - ours.deform(poses[i][1])).max() < 1e-5
+    for clip in CLIPS:
+        k = [i for i, (c, _) in enumerate(poses) if c == clip]
+        r = measures(ch, [poses[i][1] for i in k], [V[i] for i in k])
+        assert not r["nan"], clip
+        assert r["ours"] <= r["lbs"], (clip, r)
+        ratio = np.array(r["ratio"])
+        assert np.all(np.abs(ratio - 1.0) <= 0.03), (clip, ratio.min(), ratio.max())

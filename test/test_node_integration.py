@@ -342,6 +342,8 @@ def test_signal_while_busy_exits_zero_within_2_s(tmp_path, sig):
     ("", ()),                                     # empty file
     ("vertices: [[0, 0\n", ()),                   # malformed
     (None, ("-p", "iterations:=-3")),            # bad parameter, before any file is read
+    (None, ("-p", "weights:=artist")),           # neither automatic nor file
+    (None, ("-p", "weights:=file")),             # the built-in arm has no file weights
 ])
 def test_bad_start_up_is_one_line_and_non_zero(tmp_path, content, args):
     path = tmp_path / "character.yaml"
@@ -355,11 +357,12 @@ def test_bad_start_up_is_one_line_and_non_zero(tmp_path, content, args):
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr
     assert lines[0].startswith("skin_node: error: ")
-    assert (str(path) if not args else "iterations") in lines[0]
+    assert (str(path) if not args else args[1].split(":=")[0]) in lines[0]
 
 
 def test_params_files_hold_only_declared_valid_parameters():
-    node_params = {"character", "surface_vertices", "pipeline", "frame_id", "name_map"}
+    node_params = {"character", "surface_vertices", "weights", "pipeline", "frame_id",
+                   "name_map"}
     for name in ("arm", "humanoid"):
         params = yaml.safe_load((REPO / "config" / f"{name}.yaml").read_text())
         params = params["skin_node"]["ros__parameters"]
