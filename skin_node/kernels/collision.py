@@ -295,6 +295,50 @@ def in_box(X, verts, sub, P, r):
 
 
 @nb.njit(cache=True, nogil=True)
+def push_out(X, F, M, tri_bone, tri_normal, verts, tris, eps):
+    """Move each ``verts[a]`` along the carried normal ``n`` of the triangle
+    ``tris[a]`` it crossed to ``eps`` in front of the plane through that
+    triangle's centre (all planes taken before any vertex moves)."""
+    k = verts.shape[0]
+    step = np.empty((k, 3))
+    for a in range(k):
+        i, f = verts[a], tris[a]
+        b = tri_bone[f]
+        n0 = (M[b, 0, 0] * tri_normal[f, 0] + M[b, 0, 1] * tri_normal[f, 1]
+              + M[b, 0, 2] * tri_normal[f, 2])
+        n1 = (M[b, 1, 0] * tri_normal[f, 0] + M[b, 1, 1] * tri_normal[f, 1]
+              + M[b, 1, 2] * tri_normal[f, 2])
+        n2 = (M[b, 2, 0] * tri_normal[f, 0] + M[b, 2, 1] * tri_normal[f, 1]
+              + M[b, 2, 2] * tri_normal[f, 2])
+        c0 = (X[F[f, 0], 0] + X[F[f, 1], 0] + X[F[f, 2], 0]) / 3.0
+        c1 = (X[F[f, 0], 1] + X[F[f, 1], 1] + X[F[f, 2], 1]) / 3.0
+        c2 = (X[F[f, 0], 2] + X[F[f, 1], 2] + X[F[f, 2], 2]) / 3.0
+        d = eps - ((X[i, 0] - c0) * n0 + (X[i, 1] - c1) * n1 + (X[i, 2] - c2) * n2)
+        step[a, 0], step[a, 1], step[a, 2] = d * n0, d * n1, d * n2
+    for a in range(k):
+        for r in range(3):
+            X[verts[a], r] += step[a, r]
+
+
+@nb.njit(cache=True, nogil=True)
+def merge_sorted(a, b):
+    """The union of two sorted int arrays, sorted, each value once."""
+    out = np.empty(a.shape[0] + b.shape[0], dtype=np.int64)
+    i = j = n = 0
+    while i < a.shape[0] or j < b.shape[0]:
+        if j == b.shape[0] or (i < a.shape[0] and a[i] <= b[j]):
+            x = a[i]
+            i += 1
+        else:
+            x = b[j]
+            j += 1
+        if n == 0 or out[n - 1] != x:
+            out[n] = x
+            n += 1
+    return out[:n]
+
+
+@nb.njit(cache=True, nogil=True)
 def carried_normals(M, tri_bone, tri_normal, tris, out):
     """``out[a] = R(tri_bone[t]) n0[t]`` for ``t = tris[a]``: rest normals carried
     by each triangle's bone."""

@@ -37,6 +37,9 @@ class Frame:
     touched : list of int arrays
         Surface vertices the collision stage moved (skin in contact), so later
         stages leave them where they are.
+    memo : dict
+        Values of the pose alone that several stages need (posed bone
+        segments of a joint region, say), computed once per frame.
     """
 
     q: np.ndarray
@@ -53,6 +56,7 @@ class Frame:
     seg_B: np.ndarray
     counts: dict = field(default_factory=dict)
     touched: list = field(default_factory=list)
+    memo: dict = field(default_factory=dict)
 
 
 class Stage:

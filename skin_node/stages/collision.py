@@ -5,7 +5,7 @@ import numba
 import numpy as np
 
 from ..kernels.collision import (carried_normals, crossed_vertices, halfspace_project,
-                                 near_points, ring_positions)
+                                 merge_sorted, near_points, push_out, ring_positions)
 from ..rigging.weights import point_segment_distance
 from .base import Frame, KeyedCache, Stage
 
@@ -68,19 +68,35 @@ class JointRegions:
         end = P[self.child[j]] if self.child[j] >= 0 else skel.tips[j]
         return np.array([P[skel.parents[j]], P[j]]), np.array([P[j], end])
 
-    def posed_segments(self, j: int, M: np.ndarray):
+    def posed_segments(self, j: int, M: np.ndarray, memo: dict | None = None):
+        """(2,3), (2,3): :meth:`rest_segments` of ``j`` posed by the skinning
+        matrices ``M``; kept in ``memo`` (a frame's) when given. Read-only."""
+        if memo is not None:
+            hit = memo.get(("segments", j))
+            if hit is None:
+                hit = memo[("segments", j)] = self.posed_segments(j, M)
+            return hit
         A, B = self.rest_segments(j)
         Ms = M[[self.skel.parents[j], j]]
         A = np.einsum("sij,sj->si", Ms[:, :3, :3], A) + Ms[:, :3, 3]
         B = np.einsum("sij,sj->si", Ms[:, :3, :3], B) + Ms[:, :3, 3]
         return A, B
 
-    def posed(self, j: int, M: np.ndarray):
+    def posed(self, j: int, M: np.ndarray, memo: dict | None = None):
         """Joint ``j``'s posed bone segments and its triangles' carried normals:
-        what :meth:`crossed` needs of a pose (one call serves every pass)."""
+        what :meth:`crossed` needs of a pose (one call serves every pass), kept
+        in ``memo`` (a frame's) when given. Read-only."""
+        if memo is not None:
+            hit = memo.get(("posed", j))
+            if hit is None:
+                hit = memo[("posed", j)] = self.posed_segments(j, M, memo) + (
+                    self._normals(j, M),)
+            return hit
+        return self.posed_segments(j, M) + (self._normals(j, M),)
+
+    def _normals(self, j: int, M: np.ndarray) -> np.ndarray:
         t = self.tris[j]
-        tn = carried_normals(M, self.tri_bone, self.tri_normal, t, np.empty((len(t), 3)))
-        return self.posed_segments(j, M) + (tn,)
+        return carried_normals(M, self.tri_bone, self.tri_normal, t, np.empty((len(t), 3)))
 
     def crossed(self, X: np.ndarray, X0: np.ndarray, F: np.ndarray, M: np.ndarray,
                 j: int, sub: np.ndarray | None = None, posed=None) -> np.ndarray:
@@ -224,7 +240,7 @@ class Collision(Stage):
                     self._szone[regs.verts[j]][:, list(joints)].any(axis=1)))
                 if not len(sub):
                     continue
-            posed = regs.posed(j, fr.M)
+            posed = regs.posed(j, fr.M, fr.memo)
             if upfront and planar:
                 # The bisector does not depend on where the skin crossed, so the
                 # half-space projection needs no detection pass before it.
@@ -257,12 +273,7 @@ class Collision(Stage):
                 # Residuals (creases the plane cannot separate): push each crossed
                 # vertex out in front of the skin it crossed, along that skin's normal.
                 tri = hit >= 0
-                f = hit[tri]
-                nrm = np.einsum("tij,tj->ti", fr.M[regs.tri_bone[f], :3, :3],
-                                regs.tri_normal[f])
-                c = X[self.F[f]].mean(axis=1)
-                depth = ((X[v[tri]] - c) * nrm).sum(1)
-                X[v[tri]] += (eps - depth)[:, None] * nrm
+                push_out(X, self.F, fr.M, regs.tri_bone, regs.tri_normal, v[tri], hit[tri], eps)
                 fr.touched.append(v[tri])
                 deep = hit == -2
                 if plane is not None and deep.any():
@@ -276,6 +287,6 @@ class Collision(Stage):
                 # is not in its one ring: recheck everything near it too.
                 near = near_points(X, regs.verts[j], X[regs.verts[j][where]],
                                    2.0 * regs.edge)
-                sub = np.union1d(regs.ring(j, where), near)
+                sub = merge_sorted(regs.ring(j, where), near)
         fr.counts["projected"] = projected
         fr.counts["pushed"] = pushed

@@ -121,7 +121,7 @@ class PBD(Stage):
             v = self.cverts[j]
             if not len(v):
                 continue
-            A, B = self._regions.posed_segments(j, fr.M)
+            A, B = self._regions.posed_segments(j, fr.M, fr.memo)
             c = B[0]                                  # the joint, where the bones meet
             u = A[0] - c
             t = B[1] - c

@@ -289,7 +289,7 @@ class Volume(Stage):
         A = np.zeros((J, 2, 3))
         B = np.zeros((J, 2, 3))
         for j in js:
-            A[j], B[j] = self.regions.posed_segments(j, fr.M)
+            A[j], B[j] = self.regions.posed_segments(j, fr.M, fr.memo)
         return A, B
 
     def _joints(self, fr: Frame, js, posed) -> None:
@@ -347,7 +347,7 @@ class Volume(Stage):
         reach = max(3.0 * regs.edge, 0.25 * regs.radius[j]) + 2.0 * regs.emax
         sub = in_box(X, regs.verts[j], np.arange(len(regs.verts[j])),
                      np.concatenate([X[v[freed]], keep[freed]]), reach)
-        posed = regs.posed(j, fr.M)
+        posed = regs.posed(j, fr.M, fr.memo)
         bad, tri = self._new_crossings(fr, j, sub, posed, v, keep)
         for r in (1.5 * regs.edge, 3.0 * regs.edge, reach, reach, reach):
             if not len(bad):
