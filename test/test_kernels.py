@@ -488,3 +488,56 @@ def test_zone_volume_gradient_matches_finite_differences(sphere_tets):
             Xp[i, d] += h
             Xm[i, d] -= h
             assert g[i, d] == pytest.approx((total(Xp) - total(Xm)) / (2 * h), abs=1e-12)
+
+
+def _skin_patch():
+    """A flat patch of side-0 skin at z = 0 (normals +z) over a bone below it,
+    and two side-1 vertices above it, away from its triangles' edges."""
+    g = np.linspace(-0.1, 0.1, 11)
+    P = np.array([[x, y, 0.0] for y in g for x in g])
+    F = []
+    for r in range(10):
+        for c in range(10):
+            a = r * 11 + c
+            F += [[a, a + 1, a + 12], [a, a + 12, a + 11]]
+    X0 = np.vstack([P, [[0.013, 0.004, 0.005], [0.054, 0.045, -0.003]]])
+    return X0, np.array(F, dtype=np.int64)
+
+
+def _crossed(X, X0, F):
+    from skin_node.kernels.collision import crossed_vertices
+    verts = np.array([len(X0) - 2, len(X0) - 1])
+    tris = np.arange(len(F))
+    bone = np.array([[-1.0, 0.0, -0.05], [0.0, 0.0, -0.05]])
+    return crossed_vertices(X, X0, F, verts, np.ones(2, dtype=np.int64), tris,
+                            np.zeros(len(F), dtype=np.int64), np.tile([0.0, 0.0, 1.0], (len(F), 1)),
+                            bone, bone + [1.0, 0.0, 0.0], np.array([1.0, 1.0]), 0.001, 0.01, 0.05)
+
+
+def test_a_vertex_crosses_skin_only_by_going_further_behind_it_than_at_rest():
+    """The sign test counts a vertex through the skin when it is behind the
+    skin's plane now and further behind than at rest: one that sat 3 mm behind
+    a far plane at rest (a concave fold) and is 2 mm behind now has not."""
+    X0, F = _skin_patch()
+    assert list(_crossed(X0, X0, F)) == [-1, -1]                 # rest: nothing crossed
+    X = X0.copy()
+    X[-2, 2] = -0.005                 # was 5 mm in front, now 5 mm behind
+    X[-1, 2] = -0.002                 # was 3 mm behind, now 2 mm behind
+    hit = _crossed(X, X0, F)
+    assert hit[0] >= 0 and hit[1] == -1, hit
+    X[-1, 2] = -0.006                 # 6 mm behind: further than at rest
+    assert _crossed(X, X0, F)[1] >= 0
+
+
+def test_push_out_returns_a_vertex_to_its_rest_depth():
+    from skin_node.kernels.collision import push_out
+    X0, F = _skin_patch()
+    X = X0.copy()
+    X[-2, 2], X[-1, 2] = -0.005, -0.006
+    hit = _crossed(X, X0, F)
+    M = np.tile(np.eye(4), (1, 1, 1))
+    push_out(X, X0, F, M, np.zeros(len(F), dtype=np.int64), np.tile([0.0, 0.0, 1.0], (len(F), 1)),
+             np.array([len(X0) - 2, len(X0) - 1]), hit, 1e-4)
+    assert X[-2, 2] == pytest.approx(1e-4)            # in front of the plane
+    assert X[-1, 2] == pytest.approx(-0.003 + 1e-4)   # back where it sat at rest
+    assert list(_crossed(X, X0, F)) == [-1, -1]

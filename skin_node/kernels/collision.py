@@ -104,8 +104,9 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, 
     crumpled flat in a crease has a meaningless normal, the skin it belongs to
     still faces the way its bone says. The vertex has passed
     through the skin when its closest point is inside that face and ``F`` is
-    negative now while it was not at rest (``F0 > -rest_tol``: a vertex of a
-    concave rest fold may already sit behind a far plane). A candidate with no
+    negative now and below its rest value ``F0`` (a vertex of a concave rest
+    fold may already sit behind a far plane: it has crossed only once it is
+    further behind it than at rest), and ``F0 > -rest_tol``. A candidate with no
     skin of side ``o`` within ``cell`` but deep in its flesh (closer than
     ``R[o] / 2`` to bone ``o`` and farther than ``R[o]`` from the joint) has
     crossed too. ``nth``: how many interleaved slices the vertices are dealt
@@ -251,7 +252,7 @@ def _crossed_range(X, X0, F, verts, vside, segA, segB, R, rest_tol, h, size, sep
         Fnow = (px - gx) * nx + (py - gy) * ny + (pz - gz) * nz
         g0, g1, g2, m0, m1, m2 = _plane(X0, F, best)
         Frest = (X0[i, 0] - g0) * m0 + (X0[i, 1] - g1) * m1 + (X0[i, 2] - g2) * m2
-        if Fnow < 0.0 and Frest > -rest_tol:
+        if Fnow < min(0.0, Frest) and Frest > -rest_tol:
             out[a] = best
     return out
 
@@ -295,14 +296,18 @@ def in_box(X, verts, sub, P, r):
 
 
 @nb.njit(cache=True, nogil=True)
-def push_out(X, F, M, tri_bone, tri_normal, verts, tris, eps):
+def push_out(X, X0, F, M, tri_bone, tri_normal, verts, tris, eps):
     """Move each ``verts[a]`` along the carried normal ``n`` of the triangle
-    ``tris[a]`` it crossed to ``eps`` in front of the plane through that
-    triangle's centre (all planes taken before any vertex moves)."""
+    ``tris[a]`` it crossed to ``eps`` in front of where it sat at rest relative
+    to that triangle's centre plane, or of the plane itself when it was in
+    front of it (see :func:`crossed_vertices`). All planes are taken before any
+    vertex moves."""
     k = verts.shape[0]
     step = np.empty((k, 3))
     for a in range(k):
         i, f = verts[a], tris[a]
+        g0, g1, g2, m0, m1, m2 = _plane(X0, F, f)
+        rest = min(0.0, (X0[i, 0] - g0) * m0 + (X0[i, 1] - g1) * m1 + (X0[i, 2] - g2) * m2)
         b = tri_bone[f]
         n0 = (M[b, 0, 0] * tri_normal[f, 0] + M[b, 0, 1] * tri_normal[f, 1]
               + M[b, 0, 2] * tri_normal[f, 2])
@@ -313,7 +318,7 @@ def push_out(X, F, M, tri_bone, tri_normal, verts, tris, eps):
         c0 = (X[F[f, 0], 0] + X[F[f, 1], 0] + X[F[f, 2], 0]) / 3.0
         c1 = (X[F[f, 0], 1] + X[F[f, 1], 1] + X[F[f, 2], 1]) / 3.0
         c2 = (X[F[f, 0], 2] + X[F[f, 1], 2] + X[F[f, 2], 2]) / 3.0
-        d = eps - ((X[i, 0] - c0) * n0 + (X[i, 1] - c1) * n1 + (X[i, 2] - c2) * n2)
+        d = rest + eps - ((X[i, 0] - c0) * n0 + (X[i, 1] - c1) * n1 + (X[i, 2] - c2) * n2)
         step[a, 0], step[a, 1], step[a, 2] = d * n0, d * n1, d * n2
     for a in range(k):
         for r in range(3):

@@ -273,7 +273,8 @@ class Collision(Stage):
                 # Residuals (creases the plane cannot separate): push each crossed
                 # vertex out in front of the skin it crossed, along that skin's normal.
                 tri = hit >= 0
-                push_out(X, self.F, fr.M, regs.tri_bone, regs.tri_normal, v[tri], hit[tri], eps)
+                push_out(X, self.V0, self.F, fr.M, regs.tri_bone, regs.tri_normal, v[tri],
+                         hit[tri], eps)
                 fr.touched.append(v[tri])
                 deep = hit == -2
                 if plane is not None and deep.any():
