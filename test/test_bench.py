@@ -180,3 +180,13 @@ def test_cli_writes_csv_json_png(tmp_path):
     for png in ("speed_accuracy_arm_2000.png", "pose_sweeps_arm_2000.png"):
         assert (tmp_path / png).read_bytes()[:4] == b"\x89PNG"
     assert cli.main(["run", "--pipelines", "bogus", "--out", str(tmp_path)]) == 2
+
+
+def test_ros_latency_bad_character_is_one_line_and_exit_2(capsys):
+    pytest.importorskip("rclpy")
+    from skin_node.bench.ros_latency import main
+    assert main(["--character", "arm", "--weights", "file", "--seconds", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("skin_bench ros-latency: error: arm: weights")
+    assert main(["--character", "no_such_character.glb", "--seconds", "1"]) == 2
+    assert "no_such_character.glb" in capsys.readouterr().err

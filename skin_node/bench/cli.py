@@ -342,7 +342,11 @@ def report(out: Path, quick: bool = False, ros: bool = True, progress: bool = Tr
 
 
 def latency_line(lat: dict) -> str:
-    return (f"ROS latency ({lat['character']}:{lat['surface_vertices']}, {lat['rate_hz']:.0f} Hz "
+    scene = (f"{lat['character']}:{lat['surface_vertices']}" if lat["surface_vertices"] else
+             f"{Path(lat['character']).name}, {lat.get('weights', 'automatic')} weights")
+    if lat.get("motion", "built-in") != "built-in":
+        scene += f", {Path(lat['motion']).name}"
+    return (f"ROS latency ({scene}, {lat['rate_hz']:.0f} Hz "
             f"for {lat['seconds']:.0f} s): p50 {lat['latency_ms_p50']:.1f} ms, p99 "
             f"{lat['latency_ms_p99']:.1f} ms, {lat['outputs']} outputs for {lat['inputs']} inputs, "
             f"node skipped {lat['skipped_stale']} as stale")

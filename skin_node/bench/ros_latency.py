@@ -32,9 +32,12 @@ def _command() -> list:
 
 def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str = "humanoid",
                     surface_vertices: int = 24000, domain: int | None = None,
-                    ready_timeout: float = 300.0, params: list | None = None) -> dict:
+                    ready_timeout: float = 300.0, params: list | None = None,
+                    weights: str = "automatic", bvh: str = "") -> dict:
     """Run the node and measure it; see the module docstring. Returns a dict.
-    ``params``: more node parameters as ``name:=value`` (``threads:=2``)."""
+    ``params``: more node parameters as ``name:=value`` (``threads:=2``).
+    ``character`` may be a character file (``surface_vertices`` then does not
+    apply); ``bvh``: play this BVH retargeted to it instead of the built-in clip."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
@@ -49,12 +52,25 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                PYTHONUNBUFFERED="1")
     os.environ.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    ch = load_character(character, surface_vertices=surface_vertices, progress=False)
-    clip = make_clip("walk" if character == "humanoid" else "elbow_bend", ch.skeleton)
+    builtin = character in ("arm", "humanoid")
+    if builtin:
+        ch = load_character(character, surface_vertices=surface_vertices, weights=weights,
+                            progress=False)
+    else:
+        surface_vertices = 0
+    if bvh:
+        from skin_node.player import load_motion
+        _, names, frames, _ = load_motion(character, bvh=bvh)
+    else:
+        clip = make_clip("walk" if character != "arm" else "elbow_bend",
+                         ch.skeleton if builtin else load_character(
+                             character, weights=weights, progress=False).skeleton)
+        names, frames = list(clip.channel_names), clip.frames
     log = tempfile.NamedTemporaryFile("w+", suffix=".log", delete=False)
     extra = [a for p in (params or []) for a in ("-p", p)]
+    extra += ["-p", f"surface_vertices:={surface_vertices}"] if builtin else []
     proc = subprocess.Popen(_command() + ["--ros-args", "-p", f"character:={character}",
-                                          "-p", f"surface_vertices:={surface_vertices}"] + extra,
+                                          "-p", f"weights:={weights}"] + extra,
                             stdout=log, stderr=subprocess.STDOUT, env=env)
     rclpy.init()
     node = rclpy.create_node("skin_bench_latency")
@@ -92,7 +108,6 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
         ready_s = time.monotonic() - t_setup
         while pub.get_subscription_count() == 0:
             ex.spin_once(timeout_sec=0.05)
-        names = list(clip.channel_names)
         period = 1.0 / rate
         sent = 0
         t0 = time.monotonic()
@@ -100,7 +115,7 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
             due = t0 + sent * period
             while time.monotonic() < due:
                 ex.spin_once(timeout_sec=max(0.0, min(due - time.monotonic(), 0.002)))
-            q = clip.frames[sent % len(clip.frames)]
+            q = frames[sent % len(frames)]
             pub.publish(channels_to_joint_state(names, q, clock.now().to_msg()))
             sent += 1
         # drain outputs and wait for a diagnostics message that saw every input
@@ -122,7 +137,8 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
         log.close()
         os.unlink(log.name)
     L = np.array(lat) if lat else np.array([np.nan])
-    return {"character": character, "surface_vertices": surface_vertices, "rate_hz": rate,
+    return {"character": character, "surface_vertices": surface_vertices, "weights": weights,
+            "motion": bvh or "built-in", "rate_hz": rate,
             "seconds": seconds, "node_ready_s": ready_s, "inputs": sent, "outputs": len(lat),
             "latency_ms_p50": float(np.percentile(L, 50)),
             "latency_ms_p99": float(np.percentile(L, 99)),
@@ -138,7 +154,10 @@ def main(argv: list | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--rate", type=float, default=120.0)
     ap.add_argument("--character", default="humanoid")
-    ap.add_argument("--surface-vertices", type=int, default=24000)
+    ap.add_argument("--surface-vertices", type=int, default=24000,
+                    help="of a built-in character")
+    ap.add_argument("--weights", default="automatic", choices=("automatic", "file"))
+    ap.add_argument("--bvh", default="", help="play this BVH, retargeted to the character")
     ap.add_argument("--domain", type=int, default=None, help="ROS_DOMAIN_ID (default: from pid)")
     ap.add_argument("--out", default="", help="write the result as JSON here")
     ap.add_argument("--param", action="append", default=[], metavar="NAME:=VALUE",
@@ -147,8 +166,12 @@ def main(argv: list | None = None) -> int:
     bad = [p for p in a.param if ":=" not in p]
     if bad:
         ap.error(f"--param takes NAME:=VALUE, got {bad}")
-    res = measure_latency(a.seconds, a.rate, a.character, a.surface_vertices, a.domain,
-                          params=a.param)
+    try:
+        res = measure_latency(a.seconds, a.rate, a.character, a.surface_vertices, a.domain,
+                              params=a.param, weights=a.weights, bvh=a.bvh)
+    except (OSError, ValueError, RuntimeError) as e:
+        print(f"skin_bench ros-latency: error: {e}", file=sys.stderr)
+        return 2
     text = json.dumps(res, indent=1)
     if a.out:
         with open(a.out, "w") as f:
