@@ -365,8 +365,9 @@ class Volume(Stage):
             back = np.union1d(back, at[v[at] == corners])
             if not len(back):
                 break
+            P = np.concatenate([X[v[back]], keep[back]])       # where it was and is back
             X[v[back]] = keep[back]
-            near = in_box(X, regs.verts[j], sub, X[v[back]], reach)
+            near = in_box(X, regs.verts[j], sub, P, reach)
             bad, tri = self._new_crossings(fr, j, near, posed, v, keep)
         X[v] = keep
         return ratio
