@@ -45,27 +45,22 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     from shape_msgs.msg import Mesh
 
     from msg_adapters import channels_to_joint_state, diagnostic_values
-    from skin_node import load_character, make_clip
+    from skin_node import load_character
+    from skin_node.builtin.characters import BUILTIN_CHARACTERS
     from skin_node.node import QOS_JOINT_STATES, QOS_LATCHED, QOS_STREAM
 
     domain = domain if domain is not None else 60 + os.getpid() % 40
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                PYTHONUNBUFFERED="1")
     os.environ.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    builtin = character in ("arm", "humanoid")
-    if builtin:
-        ch = load_character(character, surface_vertices=surface_vertices, weights=weights,
-                            progress=False)
+    builtin = character in BUILTIN_CHARACTERS
+    if builtin:     # a bad request fails here, and the node then reads the rig from the cache
+        load_character(character, surface_vertices=surface_vertices, weights=weights,
+                       progress=False)
     else:
         surface_vertices = 0
-    if bvh:
-        from skin_node.player import load_motion
-        _, names, frames, _ = load_motion(character, bvh=bvh)
-    else:
-        clip = make_clip("walk" if character != "arm" else "elbow_bend",
-                         ch.skeleton if builtin else load_character(
-                             character, weights=weights, progress=False).skeleton)
-        names, frames = list(clip.channel_names), clip.frames
+    from skin_node.player import load_motion
+    _, names, frames, _ = load_motion(character, bvh=bvh)
     log = tempfile.NamedTemporaryFile("w+", suffix=".log", delete=False)
     extra = [a for p in (params or []) for a in ("-p", p)]
     extra += ["-p", f"surface_vertices:={surface_vertices}"] if builtin else []

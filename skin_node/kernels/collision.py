@@ -308,13 +308,7 @@ def push_out(X, X0, F, M, tri_bone, tri_normal, verts, tris, eps):
         i, f = verts[a], tris[a]
         g0, g1, g2, m0, m1, m2 = _plane(X0, F, f)
         rest = min(0.0, (X0[i, 0] - g0) * m0 + (X0[i, 1] - g1) * m1 + (X0[i, 2] - g2) * m2)
-        b = tri_bone[f]
-        n0 = (M[b, 0, 0] * tri_normal[f, 0] + M[b, 0, 1] * tri_normal[f, 1]
-              + M[b, 0, 2] * tri_normal[f, 2])
-        n1 = (M[b, 1, 0] * tri_normal[f, 0] + M[b, 1, 1] * tri_normal[f, 1]
-              + M[b, 1, 2] * tri_normal[f, 2])
-        n2 = (M[b, 2, 0] * tri_normal[f, 0] + M[b, 2, 1] * tri_normal[f, 1]
-              + M[b, 2, 2] * tri_normal[f, 2])
+        n0, n1, n2 = _carried(M, tri_bone, tri_normal, f)
         c0 = (X[F[f, 0], 0] + X[F[f, 1], 0] + X[F[f, 2], 0]) / 3.0
         c1 = (X[F[f, 0], 1] + X[F[f, 1], 1] + X[F[f, 2], 1]) / 3.0
         c2 = (X[F[f, 0], 2] + X[F[f, 1], 2] + X[F[f, 2], 2]) / 3.0
@@ -348,12 +342,20 @@ def carried_normals(M, tri_bone, tri_normal, tris, out):
     """``out[a] = R(tri_bone[t]) n0[t]`` for ``t = tris[a]``: rest normals carried
     by each triangle's bone."""
     for a in range(tris.shape[0]):
-        t = tris[a]
-        b = tri_bone[t]
-        for r in range(3):
-            out[a, r] = (M[b, r, 0] * tri_normal[t, 0] + M[b, r, 1] * tri_normal[t, 1]
-                         + M[b, r, 2] * tri_normal[t, 2])
+        out[a, 0], out[a, 1], out[a, 2] = _carried(M, tri_bone, tri_normal, tris[a])
     return out
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _carried(M, tri_bone, tri_normal, t):
+    """Triangle ``t``'s rest normal turned by its bone's skinning matrix."""
+    b = tri_bone[t]
+    return ((M[b, 0, 0] * tri_normal[t, 0] + M[b, 0, 1] * tri_normal[t, 1]
+             + M[b, 0, 2] * tri_normal[t, 2]),
+            (M[b, 1, 0] * tri_normal[t, 0] + M[b, 1, 1] * tri_normal[t, 1]
+             + M[b, 1, 2] * tri_normal[t, 2]),
+            (M[b, 2, 0] * tri_normal[t, 0] + M[b, 2, 1] * tri_normal[t, 1]
+             + M[b, 2, 2] * tri_normal[t, 2]))
 
 
 @nb.njit(cache=True, nogil=True)

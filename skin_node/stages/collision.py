@@ -110,8 +110,13 @@ class JointRegions:
         if sub is not None:
             v, side = v[sub], side[sub]
         return crossed_vertices(X, X0, F, v, side, t, self.tside[j], tn,
-                                A, B, self.R[j], 3.0 * self.edge, 0.5 * rad,
-                                max(3.0 * self.edge, 0.25 * rad), numba.get_num_threads())
+                                A, B, self.R[j], 3.0 * self.edge, 0.5 * rad, self.cell(j),
+                                numba.get_num_threads())
+
+    def cell(self, j: int) -> float:
+        """How near the other side's skin :meth:`crossed` looks, for joint ``j``
+        (three median edges, at least a quarter of the limb radius)."""
+        return max(3.0 * self.edge, 0.25 * self.radius[j])
 
     def ring(self, j: int, sub: np.ndarray) -> np.ndarray:
         """Positions into ``verts[j]`` of ``sub`` and its one-ring neighbours in the region."""

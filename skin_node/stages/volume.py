@@ -344,7 +344,7 @@ class Volume(Stage):
         freed = self._m[:len(v)] > guarded + 1e-9
         if not freed.any():
             return new
-        reach = max(3.0 * regs.edge, 0.25 * regs.radius[j]) + 2.0 * regs.emax
+        reach = regs.cell(j) + 2.0 * regs.emax
         sub = in_box(X, regs.verts[j], np.arange(len(regs.verts[j])),
                      np.concatenate([X[v[freed]], keep[freed]]), reach)
         posed = regs.posed(j, fr.M, fr.memo)
