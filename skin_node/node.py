@@ -116,8 +116,6 @@ class SkinNode(Node):
         p = lambda name: self.get_parameter(name).value  # noqa: E731
 
         n, spec, weights = p("surface_vertices"), p("character"), p("weights")
-        if weights not in ("automatic", "file"):
-            raise ValueError(f"weights: '{weights}' is neither 'automatic' nor 'file'")
         try:
             self.character = skin_node.load_character(
                 spec, weights=weights, **({"surface_vertices": n} if n > 0 else {}))
@@ -141,10 +139,18 @@ class SkinNode(Node):
         # Bent joints wake the solver and collision stages, and joints at their
         # limits fold skin through skin (push-out, rechecks): compile all of it
         # now, then settle back at rest, so the first real frame runs at full speed.
+        # The volume stage's checked swelling runs only where a region stays short:
+        # have every bent region take it once here.
+        # Limits of +-pi (a glTF skeleton's) have their middle at rest: bend every
+        # channel by 1 rad within its limits too.
         limits = self.character.skeleton.limits
-        q_bent = np.concatenate([np.zeros(3), limits.mean(axis=-1).ravel()])
+        q_mid = np.concatenate([np.zeros(3), limits.mean(axis=-1).ravel()])
+        q_bent = np.concatenate([np.zeros(3), np.clip(1.0, limits[..., 0], limits[..., 1]).ravel()])
         q_far = np.concatenate([np.zeros(3), limits[..., 1].ravel()])
-        for q in (q_bent, q_far, np.zeros_like(q_bent)):
+        checked = self._pipe.params["volume_checked_below"]
+        for q, below in ((q_mid, 0.0), (q_bent, 0.0), (q_far, 0.0),
+                         (np.zeros_like(q_mid), checked)):
+            self._pipe.set_params(volume_checked_below=below)
             if not np.all(np.isfinite(self._pipe.deform(q))):
                 raise ValueError(f"{p('character')}: warm-up pose deforms to non-finite vertices")
         warm_s = time.perf_counter() - t_warm
