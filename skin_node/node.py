@@ -139,10 +139,10 @@ class SkinNode(Node):
         # Bent joints wake the solver and collision stages, and joints at their
         # limits fold skin through skin (push-out, rechecks): compile all of it
         # now, then settle back at rest, so the first real frame runs at full speed.
-        # The volume stage's checked swelling runs only where a region stays short:
-        # have every bent region take it once here.
-        # Limits of +-pi (a glTF skeleton's) have their middle at rest: bend every
-        # channel by 1 rad within its limits too.
+        # Limits of +-pi (a glTF skeleton's) have their middle at rest, so every
+        # channel is also bent by 1 rad within its limits; and the volume stage's
+        # checked swelling, which runs only where a region stays short, is forced
+        # on for the bent poses.
         limits = self.character.skeleton.limits
         q_mid = np.concatenate([np.zeros(3), limits.mean(axis=-1).ravel()])
         q_bent = np.concatenate([np.zeros(3), np.clip(1.0, limits[..., 0], limits[..., 1]).ravel()])

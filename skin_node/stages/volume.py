@@ -325,15 +325,15 @@ class Volume(Stage):
             hops[self._queue[:reached]] = self._hop_limit
         fr.counts["region_volume_min"] = worst
 
-    def _checked(self, fr: Frame, j: int, args, ratio: float, guarded) -> float:
+    def _checked(self, fr: Frame, j: int, args, ratio: float, m_guarded) -> float:
         """Past the guards, where they leave region ``j`` short: skin within the
         other side's flesh radius, or next to a resolved contact, may as well
         swell away from that skin as into it. Move all of the region's mobile
         skin, then test it for skin crossings as the collision stage does (where
         the move can have changed them), and put back the skin around every new
         crossing, over a growing radius, up to five times; if crossings remain,
-        the whole region goes back to what the guards left. Returns the region's
-        volume ratio."""
+        the whole region goes back to what the guards left. ``m_guarded``: the
+        mobilities of the guarded pass. Returns the region's volume ratio."""
         X, regs = fr.surface, self.regions
         v = self.rverts[j]
         keep = X[v].copy()
@@ -341,7 +341,7 @@ class Volume(Stage):
         # Only skin the guards held back moved further than they let it: only
         # skin within the test's reach of where that was or is now can have
         # changed (the reach: the detection cell and a stretched edge).
-        freed = self._m[:len(v)] > guarded + 1e-9
+        freed = self._m[:len(v)] > m_guarded + 1e-9
         if not freed.any():
             return new
         reach = regs.cell(j) + 2.0 * regs.emax
