@@ -504,14 +504,72 @@ def _skin_patch():
     return X0, np.array(F, dtype=np.int64)
 
 
-def _crossed(X, X0, F):
-    from skin_node.kernels.collision import crossed_vertices
-    verts = np.array([len(X0) - 2, len(X0) - 1])
+def _crossed(X, X0, F, verts=None, reach=0.05):
+    from skin_node.kernels.collision import crossed_vertices, triangle_trees
+    verts = np.array([len(X0) - 2, len(X0) - 1]) if verts is None else verts
     tris = np.arange(len(F))
+    tside = np.zeros(len(F), dtype=np.int64)
     bone = np.array([[-1.0, 0.0, -0.05], [0.0, 0.0, -0.05]])
-    return crossed_vertices(X, X0, F, verts, np.ones(2, dtype=np.int64), tris,
-                            np.zeros(len(F), dtype=np.int64), np.tile([0.0, 0.0, 1.0], (len(F), 1)),
-                            bone, bone + [1.0, 0.0, 0.0], np.array([1.0, 1.0]), 0.001, 0.01, 0.05)
+    return crossed_vertices(X, X0, F, verts, np.ones(len(verts), dtype=np.int64), tris,
+                            triangle_trees(X0, F, tris, tside),
+                            np.tile([0.0, 0.0, 1.0], (len(F), 1)), bone,
+                            bone + [1.0, 0.0, 0.0], np.array([1.0, 1.0]), 0.001, 0.01, reach)
+
+
+def test_the_crossing_test_finds_skin_behind_a_stretched_triangle():
+    """A vertex 5 mm behind the middle of a long, thin triangle (its centre
+    and corners all farther than the reach) has crossed it: the nearest
+    triangle is searched by where its face is, not where its centre is. Small
+    triangles 15 mm below it are farther."""
+    X0, F = _skin_patch()
+    X0 = X0[:-2] * 0.3 + [0.1, -0.005, -0.015]               # 6 cm of small triangles
+    n = len(X0)
+    X0 = np.vstack([X0, [[-0.2, -0.01, 0.0], [0.2, -0.01, 0.0], [0.0, 0.02, 0.0],
+                         [0.1, -0.005, 0.003], [0.1, -0.005, 0.004]]])
+    F = np.vstack([F, [[n, n + 1, n + 2]]])
+    X = X0.copy()
+    X[-2:, 2] = -0.005
+    assert list(_crossed(X, X0, F, reach=0.02)) == [len(F) - 1] * 2
+    assert list(_crossed(X0, X0, F, reach=0.02)) == [-1, -1]
+
+
+def test_the_crossing_test_is_the_brute_force_nearest_triangle_rule():
+    """On a crumpled patch, the tree search gives, vertex for vertex, what
+    testing every triangle gives (the nearest within reach, the lowest face
+    among equally near ones)."""
+    from skin_node.kernels.collision import _closest_on_triangle
+    X0, F = _skin_patch()
+    rng = np.random.default_rng(3)
+    X = X0 + rng.normal(0.0, 0.004, X0.shape)
+    X[:-2, 2] += 0.01 * np.sin(40 * X0[:-2, 0])
+    # a second layer of side-1 skin above and through the patch
+    g = np.linspace(-0.09, 0.09, 7)
+    top = np.array([[x, y, 0.0] for y in g for x in g])
+    Xall0 = np.vstack([X0, top + [0.0, 0.0, 0.004]])
+    Xall = np.vstack([X, top + rng.normal(0.0, 0.006, top.shape)])
+    verts = np.arange(len(X0), len(Xall0))
+    reach = 0.03
+    got = _crossed(Xall, Xall0, F, verts=verts, reach=reach)
+    want = []
+    for i in verts:
+        best, bd, bin_ = -1, reach * reach, False
+        for f in range(len(F)):
+            if np.sum((Xall0[F[f]].mean(0) - Xall0[i]) ** 2) < 0.001 ** 2:
+                continue
+            *q, inside = _closest_on_triangle(*Xall[i], *Xall[F[f, 0]], *Xall[F[f, 1]],
+                                              *Xall[F[f, 2]])
+            d = float(np.sum((Xall[i] - q) ** 2))
+            if d < bd or (d == bd and f < best):
+                best, bd, bin_ = f, d, inside
+        if best < 0 or not bin_:
+            want.append(-1)
+            continue
+        fnow = (Xall[i] - Xall[F[best]].mean(0))[2]
+        n0 = np.cross(*(Xall0[F[best, 1:]] - Xall0[F[best, 0]]))
+        frest = (Xall0[i] - Xall0[F[best]].mean(0)) @ (n0 / np.linalg.norm(n0))
+        want.append(best if fnow < min(0.0, frest) and frest > -0.01 else -1)
+    assert list(got) == want
+    assert 5 <= sum(w >= 0 for w in want) < len(want)      # some crossed, not all
 
 
 def test_a_vertex_crosses_skin_only_by_going_further_behind_it_than_at_rest():

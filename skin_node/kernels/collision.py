@@ -9,17 +9,6 @@ import numpy as np
 from .solver import FAST
 
 
-_OFFSETS = np.array(sorted(((a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)),
-                          key=lambda o: abs(o[0]) + abs(o[1]) + abs(o[2])), dtype=np.int64)
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _cell_hash(ix, iy, iz, size):
-    """Cell key in ``[0, size)``; ``size`` a power of two (a mask, not a modulo)."""
-    h = (ix * 73856093) ^ (iy * 19349663) ^ (iz * 83492791)
-    return h & (size - 1)
-
-
 @nb.njit(cache=True, nogil=True)
 def _closest_on_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
     """Closest point of triangle abc to p (Ericson, Real-Time Collision Detection 5.1.5)
@@ -87,146 +76,214 @@ def seg_dist(px, py, pz, A, B):
     return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
+#: Triangles per leaf of a :func:`triangle_trees` tree.
+LEAF_SIZE = 8
+
+
+def triangle_trees(X0: np.ndarray, F: np.ndarray, tris: np.ndarray, tside: np.ndarray):
+    """Bounding-volume trees over the triangles ``tris`` of a joint region, one
+    per side ``tside``, split at the median of the rest centres along their
+    longest extent. The topology is made once, at rest; :func:`crossed_vertices`
+    refits the boxes to each pose (skin deforms smoothly, so the rest grouping
+    stays tight), the way cloth solvers keep their trees.
+
+    Returns the arrays :func:`crossed_vertices` takes as ``tree``: ``roots``
+    (2,) the root node of each side (-1 none); ``child`` (m, 2) a node's two
+    children, -1 for a leaf; ``first``, ``count`` (m,) a leaf's triangles in
+    ``slot``; ``rlo``, ``rhi`` (m, 3) the box of its triangles' rest centres;
+    ``slot`` (n,) positions into ``tris`` in leaf order and ``rcen`` (n, 3)
+    their rest centres. Children come after their parent, so a refit runs the
+    nodes backwards.
+    """
+    tris = np.asarray(tris, dtype=np.int64)
+    cen = X0[F[tris]].mean(axis=1) if len(tris) else np.zeros((0, 3))
+    child, first, count, rlo, rhi, slot = [], [], [], [], [], []
+
+    def build(idx):
+        node = len(child)
+        child.append([-1, -1])
+        first.append(0)
+        count.append(0)
+        c = cen[idx]
+        rlo.append(c.min(axis=0))
+        rhi.append(c.max(axis=0))
+        if len(idx) <= LEAF_SIZE:
+            first[node], count[node] = len(slot), len(idx)
+            slot.extend(idx)
+            return node
+        axis = int(np.argmax(c.max(axis=0) - c.min(axis=0)))
+        order = idx[np.argsort(c[:, axis], kind="stable")]
+        half = len(order) // 2
+        a = build(order[:half])
+        b = build(order[half:])
+        child[node] = [a, b]
+        return node
+
+    roots = np.array([build(np.flatnonzero(tside == s)) if (tside == s).any() else -1
+                      for s in (0, 1)], dtype=np.int64)
+    slot = np.array(slot, dtype=np.int64)
+    return (roots, np.array(child, dtype=np.int64).reshape(-1, 2),
+            np.array(first, dtype=np.int64), np.array(count, dtype=np.int64),
+            np.array(rlo, dtype=np.float64).reshape(-1, 3),
+            np.array(rhi, dtype=np.float64).reshape(-1, 3), slot,
+            np.ascontiguousarray(cen[slot]).reshape(-1, 3))
+
+
+@nb.njit(cache=True, nogil=True)
+def _refit(X, F, tris, child, first, count, slot, lo, hi, tbox):
+    """Each triangle's box now (``tbox``, in slot order: low corner, high
+    corner) and each node's around its triangles (children before parents)."""
+    for n in range(child.shape[0] - 1, -1, -1):
+        if child[n, 0] < 0:
+            for d in range(3):
+                lo[n, d] = np.inf
+                hi[n, d] = -np.inf
+            for q in range(first[n], first[n] + count[n]):
+                f = tris[slot[q]]
+                for d in range(3):
+                    x0, x1, x2 = X[F[f, 0], d], X[F[f, 1], d], X[F[f, 2], d]
+                    b0, b1 = min(x0, x1, x2), max(x0, x1, x2)
+                    tbox[q, d], tbox[q, 3 + d] = b0, b1
+                    lo[n, d] = min(lo[n, d], b0)
+                    hi[n, d] = max(hi[n, d], b1)
+        else:
+            a, b = child[n, 0], child[n, 1]
+            for d in range(3):
+                lo[n, d] = min(lo[a, d], lo[b, d])
+                hi[n, d] = max(hi[a, d], hi[b, d])
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _box_near2(px, py, pz, lo, hi, n):
+    """Squared distance from p to node ``n``'s box (0 inside)."""
+    dx = max(lo[n, 0] - px, 0.0, px - hi[n, 0])
+    dy = max(lo[n, 1] - py, 0.0, py - hi[n, 1])
+    dz = max(lo[n, 2] - pz, 0.0, pz - hi[n, 2])
+    return dx * dx + dy * dy + dz * dz
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _tri_near2(px, py, pz, tbox, q):
+    """Squared distance from p to triangle slot ``q``'s box (0 inside)."""
+    dx = max(tbox[q, 0] - px, 0.0, px - tbox[q, 3])
+    dy = max(tbox[q, 1] - py, 0.0, py - tbox[q, 4])
+    dz = max(tbox[q, 2] - pz, 0.0, pz - tbox[q, 5])
+    return dx * dx + dy * dy + dz * dz
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _box_far2(px, py, pz, lo, hi, n):
+    """Squared distance from p to the farthest corner of node ``n``'s box."""
+    dx = max(px - lo[n, 0], hi[n, 0] - px)
+    dy = max(py - lo[n, 1], hi[n, 1] - py)
+    dz = max(pz - lo[n, 2], hi[n, 2] - pz)
+    return dx * dx + dy * dy + dz * dz
+
+
 @nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
-def crossed_vertices(X, X0, F, verts, vside, tris, tside, tnorm, segA, segB, R, rest_sep,
-                     rest_tol, cell, nth=1):
+def crossed_vertices(X, X0, F, verts, vside, tris, tree, tnorm, segA, segB, R, rest_sep,
+                     rest_tol, reach, nth=1):
     """The paper's sign test for skin passing through skin, made unambiguous.
 
     A joint region has two sides, 0 (parent bone) and 1 (child bone); each
     side's bone is the posed segment ``segA[s]``-``segB[s]`` and ``R[s]`` the
     largest rest distance of that side's skin from it. A vertex ``p`` of side
     ``s`` can only be inside the other side's flesh when it is within ``R[o]``
-    of bone ``o`` (a cheap filter that leaves few candidates). For those, take
-    the nearest triangle of side ``o`` (at least ``rest_sep`` from ``p`` at rest,
-    so no vertex is tested against its own neighbourhood); with ``c`` its centre
-    and ``n`` its unit normal, ``F = (p - c) . n``. ``n`` is the triangle's rest
-    normal carried by its bone (``tnorm``), not the current one: a triangle
-    crumpled flat in a crease has a meaningless normal, the skin it belongs to
-    still faces the way its bone says. The vertex has passed
-    through the skin when its closest point is inside that face and ``F`` is
-    negative now and below its rest value ``F0`` (a vertex of a concave rest
-    fold may already sit behind a far plane: it has crossed only once it is
-    further behind it than at rest), and ``F0 > -rest_tol``. A candidate with no
-    skin of side ``o`` within ``cell`` but deep in its flesh (closer than
-    ``R[o] / 2`` to bone ``o`` and farther than ``R[o]`` from the joint) has
-    crossed too. ``nth``: how many interleaved slices the vertices are dealt
-    into, one per thread.
+    of bone ``o`` (a cheap filter). For those, take the nearest triangle of
+    side ``o`` within ``reach`` (at least ``rest_sep`` from ``p`` at rest, so no
+    vertex is tested against its own neighbourhood; the lowest face index
+    among equally near ones); with ``c`` its centre and ``n`` its unit normal,
+    ``F = (p - c) . n``. ``n`` is the triangle's rest normal carried by its
+    bone (``tnorm``), not the current one: a triangle crumpled flat in a
+    crease has a meaningless normal, the skin it belongs to still faces the
+    way its bone says. The vertex has passed through the skin when its
+    closest point is inside that face and ``F`` is negative now and below its
+    rest value ``F0`` (a vertex of a concave rest fold may already sit behind
+    a far plane: it has crossed only once it is further behind it than at
+    rest), and ``F0 > -rest_tol``. A candidate with no skin of side ``o``
+    within ``reach`` but deep in its flesh (closer than ``R[o] / 2`` to bone
+    ``o`` and farther than ``R[o]`` from the joint) has crossed too. ``nth``:
+    how many interleaved slices the vertices are dealt into, one per thread.
+
+    The nearest triangle is exact (a stretched triangle counts from wherever
+    its face is near): ``tree`` is :func:`triangle_trees` of ``tris``, refit
+    here; a vertex skips every subtree whose box is beyond the nearest
+    triangle found so far, and every one whose triangles all sat within
+    ``rest_sep`` of it at rest.
 
     Returns
     -------
     (len(verts),) int: the crossed triangle of each vertex, -2 for a deep
     vertex, or -1.
     """
+    roots, child, first, count, rlo, rhi, slot, rcen = tree
     nv = verts.shape[0]
     out = -np.ones(nv, dtype=np.int64)
-    nt = tris.shape[0]
-    if nt == 0 or nv == 0:
+    if tris.shape[0] == 0 or nv == 0:
         return out
-    h = cell
-    # Only triangles that can be within h of a candidate: centre inside the
-    # candidates' bounding box grown by h and the triangle's own radius (a recheck
-    # of a few pushed vertices then hashes a few triangles, not the region's).
-    lo = np.full(3, np.inf)
-    hi = np.full(3, -np.inf)
-    for a in range(nv):
-        for d in range(3):
-            lo[d] = min(lo[d], X[verts[a], d])
-            hi[d] = max(hi[d], X[verts[a], d])
-    keep = np.empty(nt, dtype=np.int64)
-    cen = np.empty((nt, 4))
-    nk = 0
-    for a in range(nt):
-        f = tris[a]
-        i0, i1, i2 = F[f, 0], F[f, 1], F[f, 2]
-        gx = (X[i0, 0] + X[i1, 0] + X[i2, 0]) / 3.0
-        gy = (X[i0, 1] + X[i1, 1] + X[i2, 1]) / 3.0
-        gz = (X[i0, 2] + X[i1, 2] + X[i2, 2]) / 3.0
-        rr = 0.0
-        for e in range(3):
-            v = F[f, e]
-            rr = max(rr, (X[v, 0] - gx) ** 2 + (X[v, 1] - gy) ** 2 + (X[v, 2] - gz) ** 2)
-        r = math.sqrt(rr)
-        g = h + r
-        if (gx < lo[0] - g or gx > hi[0] + g or gy < lo[1] - g or gy > hi[1] + g
-                or gz < lo[2] - g or gz > hi[2] + g):
-            continue
-        keep[nk] = a
-        cen[nk, 0], cen[nk, 1], cen[nk, 2], cen[nk, 3] = gx, gy, gz, r
-        nk += 1
-    if nk == 0:
-        return out
-    size = 1
-    while size < 2 * nk:
-        size *= 2
-    # One hash table per side (keys side * size + cell hash): a vertex walks only
-    # the other side's triangles.
-    counts = np.zeros(2 * size + 1, dtype=np.int64)
-    keys = np.empty(nk, dtype=np.int64)
-    for c in range(nk):
-        k = tside[keep[c]] * size + _cell_hash(int(math.floor(cen[c, 0] / h)),
-                                               int(math.floor(cen[c, 1] / h)),
-                                               int(math.floor(cen[c, 2] / h)), size)
-        keys[c] = k
-        counts[k + 1] += 1
-    for k in range(2 * size):
-        counts[k + 1] += counts[k]
-    fill = counts[:-1].copy()
-    items = np.empty(nk, dtype=np.int64)
-    inorm = np.empty((nk, 3))
-    # Per item: centre now, bounding radius, centre at rest (so the pair loop
-    # rejects most triangles before the exact closest-point test).
-    geo = np.empty((nk, 7))
-    for c in range(nk):
-        b = fill[keys[c]]
-        fill[keys[c]] += 1
-        a = keep[c]
-        f = tris[a]
-        items[b] = f
-        inorm[b] = tnorm[a]
-        geo[b, 0], geo[b, 1], geo[b, 2], geo[b, 3] = cen[c, 0], cen[c, 1], cen[c, 2], cen[c, 3]
-        i0, i1, i2 = F[f, 0], F[f, 1], F[f, 2]
-        geo[b, 4] = (X0[i0, 0] + X0[i1, 0] + X0[i2, 0]) / 3.0
-        geo[b, 5] = (X0[i0, 1] + X0[i1, 1] + X0[i2, 1]) / 3.0
-        geo[b, 6] = (X0[i0, 2] + X0[i1, 2] + X0[i2, 2]) / 3.0
-    sep2 = rest_sep * rest_sep
-    # Vertices are independent: deal them out to the threads in turn (the
-    # candidates cluster, so contiguous halves would not balance).
+    m = child.shape[0]
+    lo = np.empty((m, 3))
+    hi = np.empty((m, 3))
+    tbox = np.empty((slot.shape[0], 6))
+    _refit(X, F, tris, child, first, count, slot, lo, hi, tbox)
     for t in nb.prange(nth):
-        _crossed_range(X, X0, F, verts, vside, segA, segB, R, rest_tol, h, size, sep2,
-                       counts, items, inorm, geo, t, nth, out)
+        _crossed_range(X, X0, F, verts, vside, tris, roots, child, first, count, rlo, rhi,
+                       slot, rcen, lo, hi, tbox, tnorm, segA, segB, R, rest_sep, rest_tol,
+                       reach, t, nth, out)
     return out
 
 
 @nb.njit(cache=True, nogil=True, fastmath=FAST)
-def _crossed_range(X, X0, F, verts, vside, segA, segB, R, rest_tol, h, size, sep2,
-                   counts, items, inorm, geo, first, step, out):
-    """The per-vertex test of :func:`crossed_vertices` for ``verts[first::step]``."""
-    for a in range(first, verts.shape[0], step):
+def _crossed_range(X, X0, F, verts, vside, tris, roots, child, first, count, rlo, rhi, slot,
+                   rcen, lo, hi, tbox, tnorm, segA, segB, R, rest_sep, rest_tol, reach,
+                   first_v, step, out):
+    """The per-vertex test of :func:`crossed_vertices` for ``verts[first_v::step]``."""
+    sep2 = rest_sep * rest_sep
+    stack = np.empty(128, dtype=np.int64)
+    near = np.empty(128)                   # each stacked node's box distance, squared
+    for a in range(first_v, verts.shape[0], step):
         i = verts[a]
         o = 1 - vside[a]
+        if roots[o] < 0:
+            continue
         px, py, pz = X[i, 0], X[i, 1], X[i, 2]
         dbone = seg_dist(px, py, pz, segA[o], segB[o])
         if dbone > R[o]:
             continue
-        ix, iy, iz = int(math.floor(px / h)), int(math.floor(py / h)), int(math.floor(pz / h))
-        best, best_d, best_in, best_b = -1, h * h, False, -1
-        reach = h                                  # sqrt(best_d)
-        for c27 in range(27):
-            # the vertex's own cell first: an early near hit lets the bounding-sphere
-            # test reject most triangles of the other cells
-            dx, dy, dz = _OFFSETS[c27, 0], _OFFSETS[c27, 1], _OFFSETS[c27, 2]
-            k = o * size + _cell_hash(ix + dx, iy + dy, iz + dz, size)
-            for b in range(counts[k], counts[k + 1]):
-                # bounding sphere: skip unless |p - g| < r_b + reach (no sqrt)
-                lim = geo[b, 3] + reach
-                cd = (px - geo[b, 0]) ** 2 + (py - geo[b, 1]) ** 2 + (pz - geo[b, 2]) ** 2
-                if cd > lim * lim:
+        rx, ry, rz = X0[i, 0], X0[i, 1], X0[i, 2]
+        best, best_q, best_d, best_in = -1, -1, reach * reach, False
+        stack[0] = roots[o]
+        near[0] = _box_near2(px, py, pz, lo, hi, roots[o])
+        top = 1
+        while top > 0:
+            top -= 1
+            n = stack[top]
+            if near[top] > best_d:
+                continue                   # beyond the nearest triangle found since
+            if _box_far2(rx, ry, rz, rlo, rhi, n) < sep2:
+                continue                   # all its skin was this vertex's neighbourhood
+            c0 = child[n, 0]
+            if c0 >= 0:
+                c1 = child[n, 1]
+                d0 = _box_near2(px, py, pz, lo, hi, c0)
+                d1 = _box_near2(px, py, pz, lo, hi, c1)
+                # the nearer child on top, so it is searched first
+                if d0 > d1:
+                    c0, c1, d0, d1 = c1, c0, d1, d0
+                if d1 <= best_d:
+                    stack[top], near[top] = c1, d1
+                    top += 1
+                if d0 <= best_d:
+                    stack[top], near[top] = c0, d0
+                    top += 1
+                continue
+            for q in range(first[n], first[n] + count[n]):
+                if _tri_near2(px, py, pz, tbox, q) > best_d:
                     continue
-                rd = ((X0[i, 0] - geo[b, 4]) ** 2 + (X0[i, 1] - geo[b, 5]) ** 2
-                      + (X0[i, 2] - geo[b, 6]) ** 2)
-                if rd < sep2:
+                gx, gy, gz = rcen[q, 0] - rx, rcen[q, 1] - ry, rcen[q, 2] - rz
+                if gx * gx + gy * gy + gz * gz < sep2:
                     continue
-                f = items[b]
+                f = tris[slot[q]]
                 a0, a1, a2 = F[f, 0], F[f, 1], F[f, 2]
                 if a0 == i or a1 == i or a2 == i:
                     continue
@@ -234,9 +291,8 @@ def _crossed_range(X, X0, F, verts, vside, segA, segB, R, rest_tol, h, size, sep
                     px, py, pz, X[a0, 0], X[a0, 1], X[a0, 2], X[a1, 0], X[a1, 1],
                     X[a1, 2], X[a2, 0], X[a2, 1], X[a2, 2])
                 d = (px - qx) ** 2 + (py - qy) ** 2 + (pz - qz) ** 2
-                if d < best_d:
-                    best, best_d, best_in, best_b = f, d, inside, b
-                    reach = math.sqrt(d)
+                if d < best_d or (d == best_d and f < best):
+                    best, best_q, best_d, best_in = f, slot[q], d, inside
         if best < 0:
             # deep in the other side's flesh: near its bone, away from the joint
             # (segA[1] is the joint, where both bones start and the flesh is shared)
@@ -247,11 +303,13 @@ def _crossed_range(X, X0, F, verts, vside, segA, segB, R, rest_tol, h, size, sep
             continue
         if not best_in:
             continue
-        gx, gy, gz = geo[best_b, 0], geo[best_b, 1], geo[best_b, 2]
-        nx, ny, nz = inorm[best_b, 0], inorm[best_b, 1], inorm[best_b, 2]
-        Fnow = (px - gx) * nx + (py - gy) * ny + (pz - gz) * nz
+        a0, a1, a2 = F[best, 0], F[best, 1], F[best, 2]
+        Fnow = 0.0
+        for d in range(3):
+            Fnow += ((X[i, d] - (X[a0, d] + X[a1, d] + X[a2, d]) / 3.0)
+                     * tnorm[best_q, d])
         g0, g1, g2, m0, m1, m2 = _plane(X0, F, best)
-        Frest = (X0[i, 0] - g0) * m0 + (X0[i, 1] - g1) * m1 + (X0[i, 2] - g2) * m2
+        Frest = (rx - g0) * m0 + (ry - g1) * m1 + (rz - g2) * m2
         if Fnow < min(0.0, Frest) and Frest > -rest_tol:
             out[a] = best
     return out

@@ -5,7 +5,8 @@ import numba
 import numpy as np
 
 from ..kernels.collision import (carried_normals, crossed_vertices, halfspace_project,
-                                 merge_sorted, near_points, push_out, ring_positions)
+                                 merge_sorted, near_points, push_out, ring_positions,
+                                 triangle_trees)
 from ..rigging.weights import point_segment_distance
 from .base import Frame, KeyedCache, Stage
 
@@ -16,8 +17,9 @@ class JointRegions:
     For joint ``j``: ``verts[j]`` its region's vertices, ``vside[j]`` 1 for those
     whose dominant bone is below ``j`` in the tree (the child side) and 0
     otherwise, ``tris[j]`` the triangles touching the region with their
-    majority side ``tside[j]``; ``R[j]`` (2,) the largest rest distance of
-    each side's skin from its bone (the parent's bone into ``j``, ``j``'s own).
+    majority side ``tside[j]`` and :func:`triangle_trees` over them in
+    ``trees[j]``; ``R[j]`` (2,) the largest rest distance of each side's skin
+    from its bone (the parent's bone into ``j``, ``j``'s own).
     """
 
     def __init__(self, character):
@@ -27,7 +29,7 @@ class JointRegions:
         below = skel.subtree()          # below[j, b]: b is j or under j
         dom = r.Widx[np.arange(len(r.Widx)), np.argmax(r.Wval, axis=1)]
         self.child = np.array([skel.children(j)[0] if skel.children(j) else -1 for j in range(J)])
-        self.verts, self.vside, self.tris, self.tside = [], [], [], []
+        self.verts, self.vside, self.tris, self.tside, self.trees = [], [], [], [], []
         self.R = np.zeros((J, 2))
         for j in range(J):
             v = np.flatnonzero(r.region == j)
@@ -40,6 +42,7 @@ class JointRegions:
             self.vside.append(side)
             self.tris.append(t)
             self.tside.append(tside)
+            self.trees.append(triangle_trees(character.V, F, t, tside))
             if len(v) and skel.parents[j] >= 0:
                 A, B = self.rest_segments(j)
                 for s_ in (0, 1):
@@ -109,7 +112,7 @@ class JointRegions:
         v, side = self.verts[j], self.vside[j]
         if sub is not None:
             v, side = v[sub], side[sub]
-        return crossed_vertices(X, X0, F, v, side, t, self.tside[j], tn,
+        return crossed_vertices(X, X0, F, v, side, t, self.trees[j], tn,
                                 A, B, self.R[j], 3.0 * self.edge, 0.5 * rad, self.cell(j),
                                 numba.get_num_threads())
 
