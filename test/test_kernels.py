@@ -505,14 +505,16 @@ def _skin_patch():
 
 
 def _crossed(X, X0, F, verts=None, reach=0.05):
-    from skin_node.kernels.collision import crossed_vertices, triangle_trees
+    from skin_node.kernels.collision import (crossed_vertices, fit_tree, tree_fit,
+                                             triangle_trees)
     verts = np.array([len(X0) - 2, len(X0) - 1]) if verts is None else verts
     tris = np.arange(len(F))
-    tside = np.zeros(len(F), dtype=np.int64)
+    tree = triangle_trees(X0, F, tris, np.zeros(len(F), dtype=np.int64))
+    fit = tree_fit(tree)
     bone = np.array([[-1.0, 0.0, -0.05], [0.0, 0.0, -0.05]])
+    fit_tree(X, F, tris, tree, fit, True)
     return crossed_vertices(X, X0, F, verts, np.ones(len(verts), dtype=np.int64), tris,
-                            triangle_trees(X0, F, tris, tside),
-                            np.tile([0.0, 0.0, 1.0], (len(F), 1)), bone,
+                            tree, fit, np.tile([0.0, 0.0, 1.0], (len(F), 1)), bone,
                             bone + [1.0, 0.0, 0.0], np.array([1.0, 1.0]), 0.001, 0.01, reach)
 
 
@@ -533,21 +535,26 @@ def test_the_crossing_test_finds_skin_behind_a_stretched_triangle():
     assert list(_crossed(X0, X0, F, reach=0.02)) == [-1, -1]
 
 
+def _two_layers(seed=3):
+    """A crumpled patch of side-0 skin and a noisy layer of side-1 vertices
+    over and through it: rest, now, the side-1 vertices."""
+    X0, F = _skin_patch()
+    rng = np.random.default_rng(seed)
+    X = X0 + rng.normal(0.0, 0.004, X0.shape)
+    X[:-2, 2] += 0.01 * np.sin(40 * X0[:-2, 0])
+    g = np.linspace(-0.09, 0.09, 7)
+    top = np.array([[x, y, 0.0] for y in g for x in g])
+    Xall0 = np.vstack([X0, top + [0.0, 0.0, 0.004]])
+    Xall = np.vstack([X, top + rng.normal(0.0, 0.006, top.shape)])
+    return Xall0, Xall, F, np.arange(len(X0), len(Xall0))
+
+
 def test_the_crossing_test_is_the_brute_force_nearest_triangle_rule():
     """On a crumpled patch, the tree search gives, vertex for vertex, what
     testing every triangle gives (the nearest within reach, the lowest face
     among equally near ones)."""
     from skin_node.kernels.collision import _closest_on_triangle
-    X0, F = _skin_patch()
-    rng = np.random.default_rng(3)
-    X = X0 + rng.normal(0.0, 0.004, X0.shape)
-    X[:-2, 2] += 0.01 * np.sin(40 * X0[:-2, 0])
-    # a second layer of side-1 skin above and through the patch
-    g = np.linspace(-0.09, 0.09, 7)
-    top = np.array([[x, y, 0.0] for y in g for x in g])
-    Xall0 = np.vstack([X0, top + [0.0, 0.0, 0.004]])
-    Xall = np.vstack([X, top + rng.normal(0.0, 0.006, top.shape)])
-    verts = np.arange(len(X0), len(Xall0))
+    Xall0, Xall, F, verts = _two_layers()
     reach = 0.03
     got = _crossed(Xall, Xall0, F, verts=verts, reach=reach)
     want = []
@@ -570,6 +577,38 @@ def test_the_crossing_test_is_the_brute_force_nearest_triangle_rule():
         want.append(best if fnow < min(0.0, frest) and frest > -0.01 else -1)
     assert list(got) == want
     assert 5 <= sum(w >= 0 for w in want) < len(want)      # some crossed, not all
+
+
+def test_boxes_grown_where_the_skin_moved_keep_the_search_exact():
+    """After a fit, moving skin and growing only the boxes of what moved gives
+    the same crossings as fitting afresh, and every box still holds its
+    triangles."""
+    from skin_node.kernels.collision import (crossed_vertices, fit_tree, tree_fit,
+                                             triangle_trees)
+    Xall0, Xall, F, verts = _two_layers(seed=5)
+    tris = np.arange(len(F))
+    tree = triangle_trees(Xall0, F, tris, np.zeros(len(F), dtype=np.int64))
+    grown, fresh = tree_fit(tree), tree_fit(tree)
+    fit_tree(Xall, F, tris, tree, grown, True)
+    rng = np.random.default_rng(1)
+    X = Xall.copy()
+    moved = rng.choice(len(Xall0) - len(verts), 30, replace=False)
+    X[moved] += rng.normal(0.0, 0.015, (30, 3))
+    fit_tree(X, F, tris, tree, grown, False)
+    fit_tree(X, F, tris, tree, fresh, True)
+    bone = np.array([[-1.0, 0.0, -0.05], [0.0, 0.0, -0.05]])
+    args = (np.tile([0.0, 0.0, 1.0], (len(F), 1)), bone, bone + [1.0, 0.0, 0.0],
+            np.array([1.0, 1.0]), 0.001, 0.01, 0.03)
+    side = np.ones(len(verts), dtype=np.int64)
+    a = crossed_vertices(X, Xall0, F, verts, side, tris, tree, grown, *args)
+    b = crossed_vertices(X, Xall0, F, verts, side, tris, tree, fresh, *args)
+    assert list(a) == list(b) and (a >= 0).sum() >= 5
+    lo, hi, tbox = grown[:3]
+    slot, leaf = tree[6], tree[9]
+    corners = X[F[tris[slot]]]                                   # (n, 3, 3)
+    assert (tbox[:, None, :3] <= corners).all() and (corners <= tbox[:, None, 3:]).all()
+    assert (lo[leaf][:, None] <= corners).all() and (corners <= hi[leaf][:, None]).all()
+    assert (np.abs(grown[3] - X[tree[10]]) == 0).all()          # the fit's own record
 
 
 def test_a_vertex_crosses_skin_only_by_going_further_behind_it_than_at_rest():

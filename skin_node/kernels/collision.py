@@ -87,13 +87,16 @@ def triangle_trees(X0: np.ndarray, F: np.ndarray, tris: np.ndarray, tside: np.nd
     refits the boxes to each pose (skin deforms smoothly, so the rest grouping
     stays tight), the way cloth solvers keep their trees.
 
-    Returns the arrays :func:`crossed_vertices` takes as ``tree``: ``roots``
-    (2,) the root node of each side (-1 none); ``child`` (m, 2) a node's two
-    children, -1 for a leaf; ``first``, ``count`` (m,) a leaf's triangles in
-    ``slot``; ``rlo``, ``rhi`` (m, 3) the box of its triangles' rest centres;
-    ``slot`` (n,) positions into ``tris`` in leaf order and ``rcen`` (n, 3)
-    their rest centres. Children come after their parent, so a refit runs the
-    nodes backwards.
+    Returns the arrays :func:`crossed_vertices` and :func:`fit_tree` take as
+    ``tree``: ``roots`` (2,) the root node of each side (-1 none); ``child``
+    (m, 2) a node's two children, -1 for a leaf; ``first``, ``count`` (m,) a
+    leaf's triangles in ``slot``; ``rlo``, ``rhi`` (m, 3) the box of its
+    triangles' rest centres; ``slot`` (n,) positions into ``tris`` in leaf
+    order and ``rcen`` (n, 3) their rest centres; ``parent`` (m,) and
+    ``leaf`` (n,) each node's parent and each slot's leaf; ``tv`` the
+    triangles' vertices and ``inc_ptr``, ``inc`` (CSR) the slots each is a
+    corner of. Children come after their parent, so a refit runs the nodes
+    backwards.
     """
     tris = np.asarray(tris, dtype=np.int64)
     cen = X0[F[tris]].mean(axis=1) if len(tris) else np.zeros((0, 3))
@@ -122,11 +125,70 @@ def triangle_trees(X0: np.ndarray, F: np.ndarray, tris: np.ndarray, tside: np.nd
     roots = np.array([build(np.flatnonzero(tside == s)) if (tside == s).any() else -1
                       for s in (0, 1)], dtype=np.int64)
     slot = np.array(slot, dtype=np.int64)
-    return (roots, np.array(child, dtype=np.int64).reshape(-1, 2),
-            np.array(first, dtype=np.int64), np.array(count, dtype=np.int64),
-            np.array(rlo, dtype=np.float64).reshape(-1, 3),
+    child = np.array(child, dtype=np.int64).reshape(-1, 2)
+    first, count = np.array(first, dtype=np.int64), np.array(count, dtype=np.int64)
+    parent = -np.ones(len(child), dtype=np.int64)
+    for n, (a, b) in enumerate(child):
+        if a >= 0:
+            parent[a] = parent[b] = n
+    leaf = np.empty(len(slot), dtype=np.int64)
+    for n in np.flatnonzero(child[:, 0] < 0):
+        leaf[first[n]:first[n] + count[n]] = n
+    corners = F[tris[slot]].ravel() if len(slot) else np.zeros(0, dtype=np.int64)
+    tv, which = np.unique(corners, return_inverse=True)
+    order = np.argsort(which, kind="stable")
+    inc = (order // 3).astype(np.int64)
+    inc_ptr = np.searchsorted(which[order], np.arange(len(tv) + 1)).astype(np.int64)
+    return (roots, child, first, count, np.array(rlo, dtype=np.float64).reshape(-1, 3),
             np.array(rhi, dtype=np.float64).reshape(-1, 3), slot,
-            np.ascontiguousarray(cen[slot]).reshape(-1, 3))
+            np.ascontiguousarray(cen[slot]).reshape(-1, 3), parent, leaf,
+            tv.astype(np.int64), inc_ptr, inc)
+
+
+def tree_fit(tree):
+    """Buffers for :func:`fit_tree`: node boxes low / high (m, 3), triangle
+    boxes (n, 6) and the corners' positions they were fit to (len(tv), 3)."""
+    m, n, k = len(tree[1]), len(tree[6]), len(tree[10])
+    return np.empty((m, 3)), np.empty((m, 3)), np.empty((n, 6)), np.empty((k, 3))
+
+
+@nb.njit(cache=True, nogil=True)
+def fit_tree(X, F, tris, tree, fit, full):
+    """Fit the boxes of ``tree`` (:func:`triangle_trees`) to the skin ``X``.
+
+    ``full``: refit every box. Otherwise only the corners that moved since the
+    last fit grow their triangles' boxes and those boxes' ancestors: boxes
+    that only grow still hold their triangles, so the search stays exact, and
+    a recheck after a push-out touches a few boxes instead of every one.
+    """
+    roots, child, first, count, rlo, rhi, slot, rcen, parent, leaf, tv, inc_ptr, inc = tree
+    lo, hi, tbox, snap = fit
+    if full:
+        _refit(X, F, tris, child, first, count, slot, lo, hi, tbox)
+        for k in range(tv.shape[0]):
+            for d in range(3):
+                snap[k, d] = X[tv[k], d]
+        return
+    for k in range(tv.shape[0]):
+        v = tv[k]
+        if X[v, 0] == snap[k, 0] and X[v, 1] == snap[k, 1] and X[v, 2] == snap[k, 2]:
+            continue
+        for b in range(inc_ptr[k], inc_ptr[k + 1]):
+            q = inc[b]
+            for d in range(3):
+                tbox[q, d] = min(tbox[q, d], X[v, d])
+                tbox[q, 3 + d] = max(tbox[q, 3 + d], X[v, d])
+            n = leaf[q]
+            while n >= 0:
+                if (lo[n, 0] <= X[v, 0] <= hi[n, 0] and lo[n, 1] <= X[v, 1] <= hi[n, 1]
+                        and lo[n, 2] <= X[v, 2] <= hi[n, 2]):
+                    break              # so do all its ancestors
+                for d in range(3):
+                    lo[n, d] = min(lo[n, d], X[v, d])
+                    hi[n, d] = max(hi[n, d], X[v, d])
+                n = parent[n]
+        for d in range(3):
+            snap[k, d] = X[v, d]
 
 
 @nb.njit(cache=True, nogil=True)
@@ -181,8 +243,8 @@ def _box_far2(px, py, pz, lo, hi, n):
 
 
 @nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
-def crossed_vertices(X, X0, F, verts, vside, tris, tree, tnorm, segA, segB, R, rest_sep,
-                     rest_tol, reach, nth=1):
+def crossed_vertices(X, X0, F, verts, vside, tris, tree, fit, tnorm, segA, segB, R,
+                     rest_sep, rest_tol, reach, nth=1):
     """The paper's sign test for skin passing through skin, made unambiguous.
 
     A joint region has two sides, 0 (parent bone) and 1 (child bone); each
@@ -206,26 +268,22 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tree, tnorm, segA, segB, R, r
     how many interleaved slices the vertices are dealt into, one per thread.
 
     The nearest triangle is exact (a stretched triangle counts from wherever
-    its face is near): ``tree`` is :func:`triangle_trees` of ``tris``, refit
-    here; a vertex skips every subtree whose box is beyond the nearest
-    triangle found so far, and every one whose triangles all sat within
-    ``rest_sep`` of it at rest.
+    its face is near): ``tree`` is :func:`triangle_trees` of ``tris`` and
+    ``fit`` its boxes, fit to ``X`` by :func:`fit_tree`; a vertex skips every
+    subtree whose box is beyond the nearest triangle found so far, and every
+    one whose triangles all sat within ``rest_sep`` of it at rest.
 
     Returns
     -------
     (len(verts),) int: the crossed triangle of each vertex, -2 for a deep
     vertex, or -1.
     """
-    roots, child, first, count, rlo, rhi, slot, rcen = tree
+    roots, child, first, count, rlo, rhi, slot, rcen = tree[:8]
+    lo, hi, tbox = fit[:3]
     nv = verts.shape[0]
     out = -np.ones(nv, dtype=np.int64)
     if tris.shape[0] == 0 or nv == 0:
         return out
-    m = child.shape[0]
-    lo = np.empty((m, 3))
-    hi = np.empty((m, 3))
-    tbox = np.empty((slot.shape[0], 6))
-    _refit(X, F, tris, child, first, count, slot, lo, hi, tbox)
     for t in nb.prange(nth):
         _crossed_range(X, X0, F, verts, vside, tris, roots, child, first, count, rlo, rhi,
                        slot, rcen, lo, hi, tbox, tnorm, segA, segB, R, rest_sep, rest_tol,

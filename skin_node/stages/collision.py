@@ -4,9 +4,9 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from ..kernels.collision import (carried_normals, crossed_vertices, halfspace_project,
-                                 merge_sorted, near_points, push_out, ring_positions,
-                                 triangle_trees)
+from ..kernels.collision import (carried_normals, crossed_vertices, fit_tree,
+                                 halfspace_project, merge_sorted, near_points, push_out,
+                                 ring_positions, tree_fit, triangle_trees)
 from ..rigging.weights import point_segment_distance
 from .base import Frame, KeyedCache, Stage
 
@@ -64,6 +64,8 @@ class JointRegions:
         self.radius = r.radius
         self._key, self._sets = None, None
         self._n, self._ptr, self._adj, self._pos = len(character.V), r.adj_ptr, r.adj, None
+        self.fits = [tree_fit(t) for t in self.trees]
+        self._fitted = [(None, None)] * J          # (posed, X) each fit is for
 
     def rest_segments(self, j: int):
         """(2,3), (2,3): the parent side's bone into ``j`` and ``j``'s own bone."""
@@ -106,13 +108,19 @@ class JointRegions:
         """Per vertex of ``verts[j]`` (or of its subset ``sub``, positions into
         ``verts[j]``): the crossed triangle, -2 deep inside, -1 not crossed.
         ``posed``: :meth:`posed` of ``(j, M)``, if already at hand."""
+        fresh = posed is None
         A, B, tn = self.posed(j, M) if posed is None else posed
         rad = self.radius[j]
         t = self.tris[j]
         v, side = self.verts[j], self.vside[j]
         if sub is not None:
             v, side = v[sub], side[sub]
-        return crossed_vertices(X, X0, F, v, side, t, self.trees[j], tn,
+        # The tree's boxes are fit once per pose (``posed`` is a frame's own);
+        # the frame's later calls only grow them where the skin has moved since.
+        was, wasX = self._fitted[j]
+        fit_tree(X, F, t, self.trees[j], self.fits[j], fresh or was is not posed or wasX is not X)
+        self._fitted[j] = (None, None) if fresh else (posed, X)
+        return crossed_vertices(X, X0, F, v, side, t, self.trees[j], self.fits[j], tn,
                                 A, B, self.R[j], 3.0 * self.edge, 0.5 * rad, self.cell(j),
                                 numba.get_num_threads())
 
