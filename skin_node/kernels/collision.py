@@ -94,9 +94,10 @@ def triangle_trees(X0: np.ndarray, F: np.ndarray, tris: np.ndarray, tside: np.nd
     triangles' rest centres; ``slot`` (n,) positions into ``tris`` in leaf
     order and ``rcen`` (n, 3) their rest centres; ``parent`` (m,) and
     ``leaf`` (n,) each node's parent and each slot's leaf; ``tv`` the
-    triangles' vertices and ``inc_ptr``, ``inc`` (CSR) the slots each is a
-    corner of. Children come after their parent, so a refit runs the nodes
-    backwards.
+    triangles' vertices, ``inc_ptr``, ``inc`` (CSR) the slots each is a
+    corner of, and ``tloc``, ``tcorner`` (n, 3) each slot's corners as
+    positions into ``tv`` and as vertex ids. Children come after their
+    parent, so a refit runs the nodes backwards.
     """
     tris = np.asarray(tris, dtype=np.int64)
     cen = X0[F[tris]].mean(axis=1) if len(tris) else np.zeros((0, 3))
@@ -142,12 +143,14 @@ def triangle_trees(X0: np.ndarray, F: np.ndarray, tris: np.ndarray, tside: np.nd
     return (roots, child, first, count, np.array(rlo, dtype=np.float64).reshape(-1, 3),
             np.array(rhi, dtype=np.float64).reshape(-1, 3), slot,
             np.ascontiguousarray(cen[slot]).reshape(-1, 3), parent, leaf,
-            tv.astype(np.int64), inc_ptr, inc)
+            tv.astype(np.int64), inc_ptr, inc, which.astype(np.int64).reshape(-1, 3),
+            corners.astype(np.int64).reshape(-1, 3))
 
 
 def tree_fit(tree):
     """Buffers for :func:`fit_tree`: node boxes low / high (m, 3), triangle
-    boxes (n, 6) and the corners' positions they were fit to (len(tv), 3)."""
+    boxes (n, 6) and the corners' positions they were fit to (len(tv), 3),
+    which the search reads instead of the scattered skin."""
     m, n, k = len(tree[1]), len(tree[6]), len(tree[10])
     return np.empty((m, 3)), np.empty((m, 3)), np.empty((n, 6)), np.empty((k, 3))
 
@@ -161,13 +164,14 @@ def fit_tree(X, F, tris, tree, fit, full):
     that only grow still hold their triangles, so the search stays exact, and
     a recheck after a push-out touches a few boxes instead of every one.
     """
-    roots, child, first, count, rlo, rhi, slot, rcen, parent, leaf, tv, inc_ptr, inc = tree
+    child, first, count, parent, leaf, tv, inc_ptr, inc, tloc = (
+        tree[1], tree[2], tree[3], tree[8], tree[9], tree[10], tree[11], tree[12], tree[13])
     lo, hi, tbox, snap = fit
     if full:
-        _refit(X, F, tris, child, first, count, slot, lo, hi, tbox)
         for k in range(tv.shape[0]):
             for d in range(3):
                 snap[k, d] = X[tv[k], d]
+        _refit(snap, tloc, child, first, count, lo, hi, tbox)
         return
     for k in range(tv.shape[0]):
         v = tv[k]
@@ -192,18 +196,18 @@ def fit_tree(X, F, tris, tree, fit, full):
 
 
 @nb.njit(cache=True, nogil=True)
-def _refit(X, F, tris, child, first, count, slot, lo, hi, tbox):
-    """Each triangle's box now (``tbox``, in slot order: low corner, high
-    corner) and each node's around its triangles (children before parents)."""
+def _refit(P, tloc, child, first, count, lo, hi, tbox):
+    """Each triangle's box (``tbox``, in slot order: low corner, high corner)
+    and each node's around its triangles (children before parents), the
+    corners at ``P[tloc]``."""
     for n in range(child.shape[0] - 1, -1, -1):
         if child[n, 0] < 0:
             for d in range(3):
                 lo[n, d] = np.inf
                 hi[n, d] = -np.inf
             for q in range(first[n], first[n] + count[n]):
-                f = tris[slot[q]]
                 for d in range(3):
-                    x0, x1, x2 = X[F[f, 0], d], X[F[f, 1], d], X[F[f, 2], d]
+                    x0, x1, x2 = P[tloc[q, 0], d], P[tloc[q, 1], d], P[tloc[q, 2], d]
                     b0, b1 = min(x0, x1, x2), max(x0, x1, x2)
                     tbox[q, d], tbox[q, 3 + d] = b0, b1
                     lo[n, d] = min(lo[n, d], b0)
@@ -279,22 +283,23 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tree, fit, tnorm, segA, segB,
     vertex, or -1.
     """
     roots, child, first, count, rlo, rhi, slot, rcen = tree[:8]
-    lo, hi, tbox = fit[:3]
+    tloc, tcorner = tree[13], tree[14]
+    lo, hi, tbox, P = fit
     nv = verts.shape[0]
     out = -np.ones(nv, dtype=np.int64)
     if tris.shape[0] == 0 or nv == 0:
         return out
     for t in nb.prange(nth):
         _crossed_range(X, X0, F, verts, vside, tris, roots, child, first, count, rlo, rhi,
-                       slot, rcen, lo, hi, tbox, tnorm, segA, segB, R, rest_sep, rest_tol,
-                       reach, t, nth, out)
+                       slot, rcen, tloc, tcorner, P, lo, hi, tbox, tnorm, segA, segB, R,
+                       rest_sep, rest_tol, reach, t, nth, out)
     return out
 
 
 @nb.njit(cache=True, nogil=True, fastmath=FAST)
 def _crossed_range(X, X0, F, verts, vside, tris, roots, child, first, count, rlo, rhi, slot,
-                   rcen, lo, hi, tbox, tnorm, segA, segB, R, rest_sep, rest_tol, reach,
-                   first_v, step, out):
+                   rcen, tloc, tcorner, P, lo, hi, tbox, tnorm, segA, segB, R, rest_sep,
+                   rest_tol, reach, first_v, step, out):
     """The per-vertex test of :func:`crossed_vertices` for ``verts[first_v::step]``."""
     sep2 = rest_sep * rest_sep
     stack = np.empty(128, dtype=np.int64)
@@ -341,14 +346,14 @@ def _crossed_range(X, X0, F, verts, vside, tris, roots, child, first, count, rlo
                 gx, gy, gz = rcen[q, 0] - rx, rcen[q, 1] - ry, rcen[q, 2] - rz
                 if gx * gx + gy * gy + gz * gz < sep2:
                     continue
-                f = tris[slot[q]]
-                a0, a1, a2 = F[f, 0], F[f, 1], F[f, 2]
-                if a0 == i or a1 == i or a2 == i:
+                if tcorner[q, 0] == i or tcorner[q, 1] == i or tcorner[q, 2] == i:
                     continue
+                a0, a1, a2 = tloc[q, 0], tloc[q, 1], tloc[q, 2]
                 qx, qy, qz, inside = _closest_on_triangle(
-                    px, py, pz, X[a0, 0], X[a0, 1], X[a0, 2], X[a1, 0], X[a1, 1],
-                    X[a1, 2], X[a2, 0], X[a2, 1], X[a2, 2])
+                    px, py, pz, P[a0, 0], P[a0, 1], P[a0, 2], P[a1, 0], P[a1, 1],
+                    P[a1, 2], P[a2, 0], P[a2, 1], P[a2, 2])
                 d = (px - qx) ** 2 + (py - qy) ** 2 + (pz - qz) ** 2
+                f = tris[slot[q]]
                 if d < best_d or (d == best_d and f < best):
                     best, best_q, best_d, best_in = f, slot[q], d, inside
         if best < 0:
