@@ -1,7 +1,8 @@
-"""Skin-through-skin detection with a spatial hash (numba)."""
+"""Skin-through-skin detection over refit bounding-volume trees (numba)."""
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
@@ -80,41 +81,49 @@ def seg_dist(px, py, pz, A, B):
 LEAF_SIZE = 8
 
 
-def triangle_trees(X0: np.ndarray, F: np.ndarray, tris: np.ndarray, tside: np.ndarray):
+class TriangleTree(NamedTuple):
+    """A bounding-volume tree over a joint region's triangles (see
+    :func:`triangle_trees`). Nodes ``m``, triangle slots ``n``."""
+
+    roots: np.ndarray      # (2,) the root node of each side's tree, -1 none
+    child: np.ndarray      # (m, 2) a node's two children, -1 for a leaf
+    first: np.ndarray      # (m,) a leaf's first slot
+    count: np.ndarray      # (m,) a leaf's number of slots
+    parent: np.ndarray     # (m,) a node's parent, -1 for a root
+    slot: np.ndarray       # (n,) positions into the region's triangles, leaf order
+    leaf: np.ndarray       # (n,) each slot's leaf
+    rcen: np.ndarray       # (n, 3) each slot's triangle centre at rest
+    tcorner: np.ndarray    # (n, 3) each slot's corner vertex ids
+    tloc: np.ndarray       # (n, 3) the same as positions into ``tv``
+    tv: np.ndarray         # the triangles' vertices, sorted
+    inc_ptr: np.ndarray    # CSR over ``tv``: the slots each vertex is a corner of
+    inc: np.ndarray
+
+
+def triangle_trees(X0: np.ndarray, F: np.ndarray, tris: np.ndarray,
+                   tside: np.ndarray) -> TriangleTree:
     """Bounding-volume trees over the triangles ``tris`` of a joint region, one
     per side ``tside``, split at the median of the rest centres along their
-    longest extent. The topology is made once, at rest; :func:`crossed_vertices`
-    refits the boxes to each pose (skin deforms smoothly, so the rest grouping
-    stays tight), the way cloth solvers keep their trees.
-
-    Returns the arrays :func:`crossed_vertices` and :func:`fit_tree` take as
-    ``tree``: ``roots`` (2,) the root node of each side (-1 none); ``child``
-    (m, 2) a node's two children, -1 for a leaf; ``first``, ``count`` (m,) a
-    leaf's triangles in ``slot``; ``rlo``, ``rhi`` (m, 3) the box of its
-    triangles' rest centres; ``slot`` (n,) positions into ``tris`` in leaf
-    order and ``rcen`` (n, 3) their rest centres; ``parent`` (m,) and
-    ``leaf`` (n,) each node's parent and each slot's leaf; ``tv`` the
-    triangles' vertices, ``inc_ptr``, ``inc`` (CSR) the slots each is a
-    corner of, and ``tloc``, ``tcorner`` (n, 3) each slot's corners as
-    positions into ``tv`` and as vertex ids. Children come after their
-    parent, so a refit runs the nodes backwards.
+    longest extent, :data:`LEAF_SIZE` triangles a leaf. The topology is made
+    once, at rest; :func:`fit_tree` fits the boxes to each pose (skin deforms
+    smoothly, so the rest grouping stays tight), the way cloth solvers keep
+    their trees. Children come after their parent, so a refit runs the nodes
+    backwards.
     """
     tris = np.asarray(tris, dtype=np.int64)
     cen = X0[F[tris]].mean(axis=1) if len(tris) else np.zeros((0, 3))
-    child, first, count, rlo, rhi, slot = [], [], [], [], [], []
+    child, first, count, slot = [], [], [], []
 
     def build(idx):
         node = len(child)
         child.append([-1, -1])
         first.append(0)
         count.append(0)
-        c = cen[idx]
-        rlo.append(c.min(axis=0))
-        rhi.append(c.max(axis=0))
         if len(idx) <= LEAF_SIZE:
             first[node], count[node] = len(slot), len(idx)
             slot.extend(idx)
             return node
+        c = cen[idx]
         axis = int(np.argmax(c.max(axis=0) - c.min(axis=0)))
         order = idx[np.argsort(c[:, axis], kind="stable")]
         half = len(order) // 2
@@ -138,20 +147,20 @@ def triangle_trees(X0: np.ndarray, F: np.ndarray, tris: np.ndarray, tside: np.nd
     corners = F[tris[slot]].ravel() if len(slot) else np.zeros(0, dtype=np.int64)
     tv, which = np.unique(corners, return_inverse=True)
     order = np.argsort(which, kind="stable")
-    inc = (order // 3).astype(np.int64)
-    inc_ptr = np.searchsorted(which[order], np.arange(len(tv) + 1)).astype(np.int64)
-    return (roots, child, first, count, np.array(rlo, dtype=np.float64).reshape(-1, 3),
-            np.array(rhi, dtype=np.float64).reshape(-1, 3), slot,
-            np.ascontiguousarray(cen[slot]).reshape(-1, 3), parent, leaf,
-            tv.astype(np.int64), inc_ptr, inc, which.astype(np.int64).reshape(-1, 3),
-            corners.astype(np.int64).reshape(-1, 3))
+    return TriangleTree(
+        roots=roots, child=child, first=first, count=count, parent=parent, slot=slot,
+        leaf=leaf, rcen=np.ascontiguousarray(cen[slot]).reshape(-1, 3),
+        tcorner=corners.astype(np.int64).reshape(-1, 3),
+        tloc=which.astype(np.int64).reshape(-1, 3), tv=tv.astype(np.int64),
+        inc_ptr=np.searchsorted(which[order], np.arange(len(tv) + 1)).astype(np.int64),
+        inc=(order // 3).astype(np.int64))
 
 
-def tree_fit(tree):
+def tree_fit(tree: TriangleTree):
     """Buffers for :func:`fit_tree`: node boxes low / high (m, 3), triangle
     boxes (n, 6) and the corners' positions they were fit to (len(tv), 3),
     which the search reads instead of the scattered skin."""
-    m, n, k = len(tree[1]), len(tree[6]), len(tree[10])
+    m, n, k = len(tree.child), len(tree.slot), len(tree.tv)
     return np.empty((m, 3)), np.empty((m, 3)), np.empty((n, 6)), np.empty((k, 3))
 
 
@@ -164,8 +173,8 @@ def fit_tree(X, F, tris, tree, fit, full):
     that only grow still hold their triangles, so the search stays exact, and
     a recheck after a push-out touches a few boxes instead of every one.
     """
-    child, first, count, parent, leaf, tv, inc_ptr, inc, tloc = (
-        tree[1], tree[2], tree[3], tree[8], tree[9], tree[10], tree[11], tree[12], tree[13])
+    child, first, count, parent, leaf = tree.child, tree.first, tree.count, tree.parent, tree.leaf
+    tv, inc_ptr, inc, tloc = tree.tv, tree.inc_ptr, tree.inc, tree.tloc
     lo, hi, tbox, snap = fit
     if full:
         for k in range(tv.shape[0]):
@@ -238,6 +247,15 @@ def _tri_near2(px, py, pz, tbox, q):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
+def _tri_near2(px, py, pz, tbox, q):
+    """Squared distance from p to triangle slot ``q``'s box (0 inside)."""
+    dx = max(tbox[q, 0] - px, 0.0, px - tbox[q, 3])
+    dy = max(tbox[q, 1] - py, 0.0, py - tbox[q, 4])
+    dz = max(tbox[q, 2] - pz, 0.0, pz - tbox[q, 5])
+    return dx * dx + dy * dy + dz * dz
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
 def _box_far2(px, py, pz, lo, hi, n):
     """Squared distance from p to the farthest corner of node ``n``'s box."""
     dx = max(px - lo[n, 0], hi[n, 0] - px)
@@ -274,32 +292,29 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tree, fit, tnorm, segA, segB,
     The nearest triangle is exact (a stretched triangle counts from wherever
     its face is near): ``tree`` is :func:`triangle_trees` of ``tris`` and
     ``fit`` its boxes, fit to ``X`` by :func:`fit_tree`; a vertex skips every
-    subtree whose box is beyond the nearest triangle found so far, and every
-    one whose triangles all sat within ``rest_sep`` of it at rest.
+    subtree whose box is beyond the nearest triangle found so far.
 
     Returns
     -------
     (len(verts),) int: the crossed triangle of each vertex, -2 for a deep
     vertex, or -1.
     """
-    roots, child, first, count, rlo, rhi, slot, rcen = tree[:8]
-    tloc, tcorner = tree[13], tree[14]
     lo, hi, tbox, P = fit
     nv = verts.shape[0]
     out = -np.ones(nv, dtype=np.int64)
     if tris.shape[0] == 0 or nv == 0:
         return out
     for t in nb.prange(nth):
-        _crossed_range(X, X0, F, verts, vside, tris, roots, child, first, count, rlo, rhi,
-                       slot, rcen, tloc, tcorner, P, lo, hi, tbox, tnorm, segA, segB, R,
-                       rest_sep, rest_tol, reach, t, nth, out)
+        _crossed_range(X, X0, F, verts, vside, tris, tree.roots, tree.child, tree.first,
+                       tree.count, tree.slot, tree.rcen, tree.tloc, tree.tcorner, P, lo, hi,
+                       tbox, tnorm, segA, segB, R, rest_sep, rest_tol, reach, t, nth, out)
     return out
 
 
 @nb.njit(cache=True, nogil=True, fastmath=FAST)
-def _crossed_range(X, X0, F, verts, vside, tris, roots, child, first, count, rlo, rhi, slot,
-                   rcen, tloc, tcorner, P, lo, hi, tbox, tnorm, segA, segB, R, rest_sep,
-                   rest_tol, reach, first_v, step, out):
+def _crossed_range(X, X0, F, verts, vside, tris, roots, child, first, count, slot, rcen,
+                   tloc, tcorner, P, lo, hi, tbox, tnorm, segA, segB, R, rest_sep, rest_tol,
+                   reach, first_v, step, out):
     """The per-vertex test of :func:`crossed_vertices` for ``verts[first_v::step]``."""
     sep2 = rest_sep * rest_sep
     stack = np.empty(128, dtype=np.int64)
@@ -323,8 +338,6 @@ def _crossed_range(X, X0, F, verts, vside, tris, roots, child, first, count, rlo
             n = stack[top]
             if near[top] > best_d:
                 continue                   # beyond the nearest triangle found since
-            if _box_far2(rx, ry, rz, rlo, rhi, n) < sep2:
-                continue                   # all its skin was this vertex's neighbourhood
             c0 = child[n, 0]
             if c0 >= 0:
                 c1 = child[n, 1]
