@@ -514,7 +514,8 @@ def _crossed(X, X0, F, verts=None, reach=0.05):
     bone = np.array([[-1.0, 0.0, -0.05], [0.0, 0.0, -0.05]])
     fit_tree(X, F, tris, tree, fit, True)
     return crossed_vertices(X, X0, F, verts, np.ones(len(verts), dtype=np.int64), tris,
-                            tree, fit, np.tile([0.0, 0.0, 1.0], (len(F), 1)), bone,
+                            tree, fit, np.eye(4)[None], np.zeros(len(F), dtype=np.int64),
+                            np.tile([0.0, 0.0, 1.0], (len(F), 1)), bone,
                             bone + [1.0, 0.0, 0.0], np.array([1.0, 1.0]), 0.001, 0.01, reach)
 
 
@@ -597,7 +598,8 @@ def test_boxes_grown_where_the_skin_moved_keep_the_search_exact():
     fit_tree(X, F, tris, tree, grown, False)
     fit_tree(X, F, tris, tree, fresh, True)
     bone = np.array([[-1.0, 0.0, -0.05], [0.0, 0.0, -0.05]])
-    args = (np.tile([0.0, 0.0, 1.0], (len(F), 1)), bone, bone + [1.0, 0.0, 0.0],
+    args = (np.eye(4)[None], np.zeros(len(F), dtype=np.int64),
+            np.tile([0.0, 0.0, 1.0], (len(F), 1)), bone, bone + [1.0, 0.0, 0.0],
             np.array([1.0, 1.0]), 0.001, 0.01, 0.03)
     side = np.ones(len(verts), dtype=np.int64)
     a = crossed_vertices(X, Xall0, F, verts, side, tris, tree, grown, *args)

@@ -265,8 +265,8 @@ def _box_far2(px, py, pz, lo, hi, n):
 
 
 @nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
-def crossed_vertices(X, X0, F, verts, vside, tris, tree, fit, tnorm, segA, segB, R,
-                     rest_sep, rest_tol, reach, nth=1):
+def crossed_vertices(X, X0, F, verts, vside, tris, tree, fit, M, tri_bone, tri_normal, segA,
+                     segB, R, rest_sep, rest_tol, reach, nth=1):
     """The paper's sign test for skin passing through skin, made unambiguous.
 
     A joint region has two sides, 0 (parent bone) and 1 (child bone); each
@@ -277,8 +277,9 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tree, fit, tnorm, segA, segB,
     side ``o`` within ``reach`` (at least ``rest_sep`` from ``p`` at rest, so no
     vertex is tested against its own neighbourhood; the lowest face index
     among equally near ones); with ``c`` its centre and ``n`` its unit normal,
-    ``F = (p - c) . n``. ``n`` is the triangle's rest normal carried by its
-    bone (``tnorm``), not the current one: a triangle crumpled flat in a
+    ``F = (p - c) . n``. ``n`` is the triangle's rest normal ``tri_normal``
+    carried by its bone ``tri_bone`` (skinning matrices ``M``), not the
+    current one: a triangle crumpled flat in a
     crease has a meaningless normal, the skin it belongs to still faces the
     way its bone says. The vertex has passed through the skin when its
     closest point is inside that face and ``F`` is negative now and below its
@@ -307,14 +308,15 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tree, fit, tnorm, segA, segB,
     for t in nb.prange(nth):
         _crossed_range(X, X0, F, verts, vside, tris, tree.roots, tree.child, tree.first,
                        tree.count, tree.slot, tree.rcen, tree.tloc, tree.tcorner, P, lo, hi,
-                       tbox, tnorm, segA, segB, R, rest_sep, rest_tol, reach, t, nth, out)
+                       tbox, M, tri_bone, tri_normal, segA, segB, R, rest_sep, rest_tol, reach,
+                       t, nth, out)
     return out
 
 
 @nb.njit(cache=True, nogil=True, fastmath=FAST)
 def _crossed_range(X, X0, F, verts, vside, tris, roots, child, first, count, slot, rcen,
-                   tloc, tcorner, P, lo, hi, tbox, tnorm, segA, segB, R, rest_sep, rest_tol,
-                   reach, first_v, step, out):
+                   tloc, tcorner, P, lo, hi, tbox, M, tri_bone, tri_normal, segA, segB, R,
+                   rest_sep, rest_tol, reach, first_v, step, out):
     """The per-vertex test of :func:`crossed_vertices` for ``verts[first_v::step]``."""
     sep2 = rest_sep * rest_sep
     stack = np.empty(128, dtype=np.int64)
@@ -329,7 +331,7 @@ def _crossed_range(X, X0, F, verts, vside, tris, roots, child, first, count, slo
         if dbone > R[o]:
             continue
         rx, ry, rz = X0[i, 0], X0[i, 1], X0[i, 2]
-        best, best_q, best_d, best_in = -1, -1, reach * reach, False
+        best, best_d, best_in = -1, reach * reach, False
         stack[0] = roots[o]
         near[0] = _box_near2(px, py, pz, lo, hi, roots[o])
         top = 1
@@ -368,7 +370,7 @@ def _crossed_range(X, X0, F, verts, vside, tris, roots, child, first, count, slo
                 d = (px - qx) ** 2 + (py - qy) ** 2 + (pz - qz) ** 2
                 f = tris[slot[q]]
                 if d < best_d or (d == best_d and f < best):
-                    best, best_q, best_d, best_in = f, slot[q], d, inside
+                    best, best_d, best_in = f, d, inside
         if best < 0:
             # deep in the other side's flesh: near its bone, away from the joint
             # (segA[1] is the joint, where both bones start and the flesh is shared)
@@ -380,10 +382,10 @@ def _crossed_range(X, X0, F, verts, vside, tris, roots, child, first, count, slo
         if not best_in:
             continue
         a0, a1, a2 = F[best, 0], F[best, 1], F[best, 2]
-        Fnow = 0.0
-        for d in range(3):
-            Fnow += ((X[i, d] - (X[a0, d] + X[a1, d] + X[a2, d]) / 3.0)
-                     * tnorm[best_q, d])
+        n0, n1, n2 = _carried(M, tri_bone, tri_normal, best)
+        Fnow = ((px - (X[a0, 0] + X[a1, 0] + X[a2, 0]) / 3.0) * n0
+                + (py - (X[a0, 1] + X[a1, 1] + X[a2, 1]) / 3.0) * n1
+                + (pz - (X[a0, 2] + X[a1, 2] + X[a2, 2]) / 3.0) * n2)
         g0, g1, g2, m0, m1, m2 = _plane(X0, F, best)
         Frest = (rx - g0) * m0 + (ry - g1) * m1 + (rz - g2) * m2
         if Fnow < min(0.0, Frest) and Frest > -rest_tol:
@@ -469,15 +471,6 @@ def merge_sorted(a, b):
             out[n] = x
             n += 1
     return out[:n]
-
-
-@nb.njit(cache=True, nogil=True)
-def carried_normals(M, tri_bone, tri_normal, tris, out):
-    """``out[a] = R(tri_bone[t]) n0[t]`` for ``t = tris[a]``: rest normals carried
-    by each triangle's bone."""
-    for a in range(tris.shape[0]):
-        out[a, 0], out[a, 1], out[a, 2] = _carried(M, tri_bone, tri_normal, tris[a])
-    return out
 
 
 @nb.njit(cache=True, nogil=True, inline="always")

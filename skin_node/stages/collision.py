@@ -4,9 +4,9 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from ..kernels.collision import (carried_normals, crossed_vertices, fit_tree,
-                                 halfspace_project, merge_sorted, near_points, push_out,
-                                 ring_positions, tree_fit, triangle_trees)
+from ..kernels.collision import (crossed_vertices, fit_tree, halfspace_project, merge_sorted,
+                                 near_points, push_out, ring_positions, tree_fit,
+                                 triangle_trees)
 from ..rigging.weights import point_segment_distance
 from .base import Frame, KeyedCache, Stage
 
@@ -73,35 +73,51 @@ class JointRegions:
         end = P[self.child[j]] if self.child[j] >= 0 else skel.tips[j]
         return np.array([P[skel.parents[j]], P[j]]), np.array([P[j], end])
 
+    def _all_rest_segments(self):
+        """(J,2,3) x2 :meth:`rest_segments` of every non-root joint (zeros for
+        roots) and (J,2) the two bones' matrices they are posed by."""
+        J = self.skel.n_joints
+        A, B = np.zeros((J, 2, 3)), np.zeros((J, 2, 3))
+        pair = np.zeros((J, 2), dtype=np.int64)
+        for j in range(J):
+            if self.skel.parents[j] >= 0:
+                A[j], B[j] = self.rest_segments(j)
+                pair[j] = self.skel.parents[j], j
+        return A, B, pair
+
     def posed_segments(self, j: int, M: np.ndarray, memo: dict | None = None):
         """(2,3), (2,3): :meth:`rest_segments` of ``j`` posed by the skinning
-        matrices ``M``; kept in ``memo`` (a frame's) when given. Read-only."""
+        matrices ``M``; every joint's at once, kept in ``memo`` (a frame's) when
+        given. Read-only."""
         if memo is not None:
-            hit = memo.get(("segments", j))
+            hit = memo.get("segments")
             if hit is None:
-                hit = memo[("segments", j)] = self.posed_segments(j, M)
-            return hit
-        A, B = self.rest_segments(j)
-        Ms = M[[self.skel.parents[j], j]]
-        A = np.einsum("sij,sj->si", Ms[:, :3, :3], A) + Ms[:, :3, 3]
-        B = np.einsum("sij,sj->si", Ms[:, :3, :3], B) + Ms[:, :3, 3]
+                hit = memo["segments"] = self._pose_segments(M)
+            return hit[0][j], hit[1][j]
+        A, B = self._pose_segments(M)
+        return A[j], B[j]
+
+    def _pose_segments(self, M: np.ndarray):
+        if not hasattr(self, "_rest_seg"):
+            self._rest_seg = self._all_rest_segments()
+        A, B, pair = self._rest_seg
+        Ms = M[pair]                                            # (J, 2, 4, 4)
+        R, t = Ms[..., :3, :3], Ms[..., :3, 3]
+        A = np.einsum("jsik,jsk->jsi", R, A) + t
+        B = np.einsum("jsik,jsk->jsi", R, B) + t
+        A.flags.writeable = B.flags.writeable = False
         return A, B
 
     def posed(self, j: int, M: np.ndarray, memo: dict | None = None):
-        """Joint ``j``'s posed bone segments and its triangles' carried normals:
-        what :meth:`crossed` needs of a pose (one call serves every pass), kept
-        in ``memo`` (a frame's) when given. Read-only."""
+        """What :meth:`crossed` needs of a pose (one value serves every pass
+        of the frame): joint ``j``'s posed bone segments, kept in ``memo`` (a
+        frame's) when given. Read-only."""
         if memo is not None:
             hit = memo.get(("posed", j))
             if hit is None:
-                hit = memo[("posed", j)] = self.posed_segments(j, M, memo) + (
-                    self._normals(j, M),)
+                hit = memo[("posed", j)] = self.posed_segments(j, M, memo)
             return hit
-        return self.posed_segments(j, M) + (self._normals(j, M),)
-
-    def _normals(self, j: int, M: np.ndarray) -> np.ndarray:
-        t = self.tris[j]
-        return carried_normals(M, self.tri_bone, self.tri_normal, t, np.empty((len(t), 3)))
+        return self.posed_segments(j, M)
 
     def crossed(self, X: np.ndarray, X0: np.ndarray, F: np.ndarray, M: np.ndarray,
                 j: int, sub: np.ndarray | None = None, posed=None) -> np.ndarray:
@@ -109,7 +125,7 @@ class JointRegions:
         ``verts[j]``): the crossed triangle, -2 deep inside, -1 not crossed.
         ``posed``: :meth:`posed` of ``(j, M)``, if already at hand."""
         fresh = posed is None
-        A, B, tn = self.posed(j, M) if posed is None else posed
+        A, B = self.posed(j, M) if posed is None else posed
         rad = self.radius[j]
         t = self.tris[j]
         v, side = self.verts[j], self.vside[j]
@@ -120,8 +136,8 @@ class JointRegions:
         was, wasX = self._fitted[j]
         fit_tree(X, F, t, self.trees[j], self.fits[j], fresh or was is not posed or wasX is not X)
         self._fitted[j] = (None, None) if fresh else (posed, X)
-        return crossed_vertices(X, X0, F, v, side, t, self.trees[j], self.fits[j], tn,
-                                A, B, self.R[j], 3.0 * self.edge, 0.5 * rad, self.cell(j),
+        return crossed_vertices(X, X0, F, v, side, t, self.trees[j], self.fits[j],
+                                np.ascontiguousarray(M), self.tri_bone, self.tri_normal, A, B, self.R[j], 3.0 * self.edge, 0.5 * rad, self.cell(j),
                                 numba.get_num_threads())
 
     def cell(self, j: int) -> float:
