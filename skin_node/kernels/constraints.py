@@ -210,12 +210,12 @@ def energy_constraint(X, t, w, m, ks, rest, k, alpha, lam, dp):
     # its gradient vanishes and the step C / |grad C| grows without bound: a tet
     # near one would throw its vertices centimetres and flip between frames. No
     # vertex moves farther than the tet's largest spring error.
-    big = 0.0
+    big2 = 0.0                              # compared squared: no root per vertex
     for a in range(4):
-        big = max(big, w[t[a]] * abs(dlam) * math.sqrt(dp[a, 0] ** 2 + dp[a, 1] ** 2
-                                                       + dp[a, 2] ** 2))
-    if big > emax:
-        dlam *= emax / big
+        big2 = max(big2, w[t[a]] ** 2 * (dp[a, 0] ** 2 + dp[a, 1] ** 2 + dp[a, 2] ** 2))
+    big2 *= dlam * dlam
+    if big2 > emax * emax:
+        dlam *= emax / math.sqrt(big2)
     for a in range(4):
         wa = w[t[a]] * dlam
         dp[a, 0] *= wa
