@@ -1,6 +1,8 @@
 """Post-processing: skin passing through skin in the joint regions."""
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 
@@ -9,6 +11,15 @@ from ..kernels.collision import (crossed_vertices, fit_tree, halfspace_project, 
                                  triangle_trees)
 from ..rigging.weights import point_segment_distance
 from .base import Frame, KeyedCache, Stage
+
+
+def _norm(a: np.ndarray) -> float:
+    return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                     a[0] * b[1] - a[1] * b[0]])
 
 
 class JointRegions:
@@ -208,16 +219,17 @@ class Collision(Stage):
         else:
             tip = fr.M[j, :3, :3] @ skel.tips[j] + fr.M[j, :3, 3]
             v = tip - pj
-        u /= np.linalg.norm(u) + 1e-300
-        v /= np.linalg.norm(v) + 1e-300
-        m = np.cross(u, v)
-        if np.linalg.norm(m) < 1e-3:
+        # 3-vectors: plain arithmetic, not numpy's general cross and norm
+        u = u / (_norm(u) + 1e-300)
+        v = v / (_norm(v) + 1e-300)
+        m = _cross(u, v)
+        if _norm(m) < 1e-3:
             return None
-        n = np.cross(m, q - pj) if self.params["collision_plane"] == "paper" else v - u
-        if np.linalg.norm(n) < 1e-9:
+        n = _cross(m, q - pj) if self.params["collision_plane"] == "paper" else v - u
+        if _norm(n) < 1e-9:
             n = v - u
-        n /= np.linalg.norm(n)
-        if np.dot(n, v - u) < 0:
+        n = n / _norm(n)
+        if n @ (v - u) < 0:
             n = -n
         return pj, n
 
