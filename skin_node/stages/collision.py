@@ -28,9 +28,9 @@ class JointRegions:
     For joint ``j``: ``verts[j]`` its region's vertices, ``vside[j]`` 1 for those
     whose dominant bone is below ``j`` in the tree (the child side) and 0
     otherwise, ``tris[j]`` the triangles touching the region with their
-    majority side ``tside[j]`` and :func:`triangle_trees` over them in
-    ``trees[j]``; ``R[j]`` (2,) the largest rest distance of each side's skin
-    from its bone (the parent's bone into ``j``, ``j``'s own).
+    majority side ``tside[j]``; ``R[j]`` (2,) the largest rest distance of
+    each side's skin from its bone (the parent's bone into ``j``, ``j``'s own).
+    :meth:`tree` gives a region's :func:`triangle_trees`, made on first use.
     """
 
     def __init__(self, character):
@@ -40,7 +40,7 @@ class JointRegions:
         below = skel.subtree()          # below[j, b]: b is j or under j
         dom = r.Widx[np.arange(len(r.Widx)), np.argmax(r.Wval, axis=1)]
         self.child = np.array([skel.children(j)[0] if skel.children(j) else -1 for j in range(J)])
-        self.verts, self.vside, self.tris, self.tside, self.trees = [], [], [], [], []
+        self.verts, self.vside, self.tris, self.tside = [], [], [], []
         self.R = np.zeros((J, 2))
         for j in range(J):
             v = np.flatnonzero(r.region == j)
@@ -53,7 +53,6 @@ class JointRegions:
             self.vside.append(side)
             self.tris.append(t)
             self.tside.append(tside)
-            self.trees.append(triangle_trees(character.V, F, t, tside))
             if len(v) and skel.parents[j] >= 0:
                 A, B = self.rest_segments(j)
                 for s_ in (0, 1):
@@ -75,7 +74,11 @@ class JointRegions:
         self.radius = r.radius
         self._key, self._sets = None, None
         self._n, self._ptr, self._adj, self._pos = len(character.V), r.adj_ptr, r.adj, None
-        self.fits = [tree_fit(t) for t in self.trees]
+        # Trees are made on first use: three stages keep regions and only the
+        # joints that fold are tested (every region's tree and fit: 6 MB on the
+        # 24k humanoid, per stage).
+        self._V0, self._F = character.V, F
+        self._trees, self._fits = [None] * J, [None] * J
         self._fitted = [(None, None)] * J          # (posed, X) each fit is for
 
     def rest_segments(self, j: int):
@@ -130,6 +133,13 @@ class JointRegions:
             return hit
         return self.posed_segments(j, M)
 
+    def tree(self, j: int):
+        """Joint ``j``'s :func:`triangle_trees` and its fit buffers."""
+        if self._trees[j] is None:
+            self._trees[j] = triangle_trees(self._V0, self._F, self.tris[j], self.tside[j])
+            self._fits[j] = tree_fit(self._trees[j])
+        return self._trees[j], self._fits[j]
+
     def crossed(self, X: np.ndarray, X0: np.ndarray, F: np.ndarray, M: np.ndarray,
                 j: int, sub: np.ndarray | None = None, posed=None) -> np.ndarray:
         """Per vertex of ``verts[j]`` (or of its subset ``sub``, positions into
@@ -144,10 +154,11 @@ class JointRegions:
             v, side = v[sub], side[sub]
         # The tree's boxes are fit once per pose (``posed`` is a frame's own);
         # the frame's later calls only grow them where the skin has moved since.
+        tree, fit = self.tree(j)
         was, wasX = self._fitted[j]
-        fit_tree(X, F, t, self.trees[j], self.fits[j], fresh or was is not posed or wasX is not X)
+        fit_tree(X, F, t, tree, fit, fresh or was is not posed or wasX is not X)
         self._fitted[j] = (None, None) if fresh else (posed, X)
-        return crossed_vertices(X, X0, F, v, side, t, self.trees[j], self.fits[j],
+        return crossed_vertices(X, X0, F, v, side, t, tree, fit,
                                 np.ascontiguousarray(M), self.tri_bone, self.tri_normal, A, B, self.R[j], 3.0 * self.edge, 0.5 * rad, self.cell(j),
                                 numba.get_num_threads())
 
