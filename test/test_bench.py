@@ -158,6 +158,17 @@ def test_pareto_front():
     assert pareto_front(x, y).tolist() == [0, 2, 3]
 
 
+def test_speed_accuracy_chart_with_a_measure_no_scene_has(tmp_path):
+    """A run without the reference (``--ref-frames 0``) has no distance to it:
+    that panel says so instead of failing on an empty log axis."""
+    from skin_node.bench.charts import ACCURACY, speed_accuracy
+    rows = [{"method": m, "ms_total_p50": t, **{k: 0.1 * t for k, _, _ in ACCURACY
+                                                 if k != "ref_mean_mm"}, "ref_mean_mm": np.nan}
+            for m, t in (("default", 12.0), ("threads2", 10.0))]
+    out = speed_accuracy(rows, tmp_path / "chart.png")
+    assert out.read_bytes()[:4] == b"\x89PNG"
+
+
 def test_default_over_lbs_time_ratio(arm):
     """The one timing assertion: a generous bound measured within one run."""
     res = cli.run_bench(["lbs", "default"], ["arm:2000"], clips=["elbow_bend"], stride=20,
