@@ -605,12 +605,12 @@ def test_boxes_grown_where_the_skin_moved_keep_the_search_exact():
     a = crossed_vertices(X, Xall0, F, verts, side, tris, tree, grown, *args)
     b = crossed_vertices(X, Xall0, F, verts, side, tris, tree, fresh, *args)
     assert list(a) == list(b) and (a >= 0).sum() >= 5
-    lo, hi, tbox = grown[:3]
+    lo, hi, tlo, thi = grown[:4]
     slot, leaf = tree.slot, tree.leaf
     corners = X[F[tris[slot]]]                                   # (n, 3, 3)
-    assert (tbox[:, None, :3] <= corners).all() and (corners <= tbox[:, None, 3:]).all()
+    assert (tlo[:, None] <= corners).all() and (corners <= thi[:, None]).all()
     assert (lo[leaf][:, None] <= corners).all() and (corners <= hi[leaf][:, None]).all()
-    assert (np.abs(grown[3] - X[tree.tv]) == 0).all()          # the fit's own record
+    assert (np.abs(grown[4] - X[tree.tv]) == 0).all()          # the fit's own record
 
 
 def test_a_vertex_crosses_skin_only_by_going_further_behind_it_than_at_rest():

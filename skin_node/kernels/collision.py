@@ -158,10 +158,11 @@ def triangle_trees(X0: np.ndarray, F: np.ndarray, tris: np.ndarray,
 
 def tree_fit(tree: TriangleTree):
     """Buffers for :func:`fit_tree`: node boxes low / high (m, 3), triangle
-    boxes (n, 6) and the corners' positions they were fit to (len(tv), 3),
-    which the search reads instead of the scattered skin."""
+    boxes low / high (n, 3) and the corners' positions they were fit to
+    (len(tv), 3), which the search reads instead of the scattered skin."""
     m, n, k = len(tree.child), len(tree.slot), len(tree.tv)
-    return np.empty((m, 3)), np.empty((m, 3)), np.empty((n, 6)), np.empty((k, 3))
+    return np.empty((m, 3)), np.empty((m, 3)), np.empty((n, 3)), np.empty((n, 3)), \
+        np.empty((k, 3))
 
 
 @nb.njit(cache=True, nogil=True)
@@ -175,12 +176,12 @@ def fit_tree(X, F, tris, tree, fit, full):
     """
     child, first, count, parent, leaf = tree.child, tree.first, tree.count, tree.parent, tree.leaf
     tv, inc_ptr, inc, tloc = tree.tv, tree.inc_ptr, tree.inc, tree.tloc
-    lo, hi, tbox, snap = fit
+    lo, hi, tlo, thi, snap = fit
     if full:
         for k in range(tv.shape[0]):
             for d in range(3):
                 snap[k, d] = X[tv[k], d]
-        _refit(snap, tloc, child, first, count, lo, hi, tbox)
+        _refit(snap, tloc, child, first, count, lo, hi, tlo, thi)
         return
     for k in range(tv.shape[0]):
         v = tv[k]
@@ -189,8 +190,8 @@ def fit_tree(X, F, tris, tree, fit, full):
         for b in range(inc_ptr[k], inc_ptr[k + 1]):
             q = inc[b]
             for d in range(3):
-                tbox[q, d] = min(tbox[q, d], X[v, d])
-                tbox[q, 3 + d] = max(tbox[q, 3 + d], X[v, d])
+                tlo[q, d] = min(tlo[q, d], X[v, d])
+                thi[q, d] = max(thi[q, d], X[v, d])
             n = leaf[q]
             while n >= 0:
                 if (lo[n, 0] <= X[v, 0] <= hi[n, 0] and lo[n, 1] <= X[v, 1] <= hi[n, 1]
@@ -205,10 +206,10 @@ def fit_tree(X, F, tris, tree, fit, full):
 
 
 @nb.njit(cache=True, nogil=True)
-def _refit(P, tloc, child, first, count, lo, hi, tbox):
-    """Each triangle's box (``tbox``, in slot order: low corner, high corner)
-    and each node's around its triangles (children before parents), the
-    corners at ``P[tloc]``."""
+def _refit(P, tloc, child, first, count, lo, hi, tlo, thi):
+    """Each triangle's box (``tlo``, ``thi``, in slot order) and each node's
+    around its triangles (children before parents), the corners at
+    ``P[tloc]``."""
     for n in range(child.shape[0] - 1, -1, -1):
         if child[n, 0] < 0:
             for d in range(3):
@@ -218,7 +219,7 @@ def _refit(P, tloc, child, first, count, lo, hi, tbox):
                 for d in range(3):
                     x0, x1, x2 = P[tloc[q, 0], d], P[tloc[q, 1], d], P[tloc[q, 2], d]
                     b0, b1 = min(x0, x1, x2), max(x0, x1, x2)
-                    tbox[q, d], tbox[q, 3 + d] = b0, b1
+                    tlo[q, d], thi[q, d] = b0, b1
                     lo[n, d] = min(lo[n, d], b0)
                     hi[n, d] = max(hi[n, d], b1)
         else:
@@ -230,37 +231,10 @@ def _refit(P, tloc, child, first, count, lo, hi, tbox):
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def _box_near2(px, py, pz, lo, hi, n):
-    """Squared distance from p to node ``n``'s box (0 inside)."""
+    """Squared distance from p to box ``n`` (corners ``lo[n]``, ``hi[n]``; 0 inside)."""
     dx = max(lo[n, 0] - px, 0.0, px - hi[n, 0])
     dy = max(lo[n, 1] - py, 0.0, py - hi[n, 1])
     dz = max(lo[n, 2] - pz, 0.0, pz - hi[n, 2])
-    return dx * dx + dy * dy + dz * dz
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _tri_near2(px, py, pz, tbox, q):
-    """Squared distance from p to triangle slot ``q``'s box (0 inside)."""
-    dx = max(tbox[q, 0] - px, 0.0, px - tbox[q, 3])
-    dy = max(tbox[q, 1] - py, 0.0, py - tbox[q, 4])
-    dz = max(tbox[q, 2] - pz, 0.0, pz - tbox[q, 5])
-    return dx * dx + dy * dy + dz * dz
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _tri_near2(px, py, pz, tbox, q):
-    """Squared distance from p to triangle slot ``q``'s box (0 inside)."""
-    dx = max(tbox[q, 0] - px, 0.0, px - tbox[q, 3])
-    dy = max(tbox[q, 1] - py, 0.0, py - tbox[q, 4])
-    dz = max(tbox[q, 2] - pz, 0.0, pz - tbox[q, 5])
-    return dx * dx + dy * dy + dz * dz
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _box_far2(px, py, pz, lo, hi, n):
-    """Squared distance from p to the farthest corner of node ``n``'s box."""
-    dx = max(px - lo[n, 0], hi[n, 0] - px)
-    dy = max(py - lo[n, 1], hi[n, 1] - py)
-    dz = max(pz - lo[n, 2], hi[n, 2] - pz)
     return dx * dx + dy * dy + dz * dz
 
 
@@ -300,7 +274,7 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tree, fit, M, tri_bone, tri_n
     (len(verts),) int: the crossed triangle of each vertex, -2 for a deep
     vertex, or -1.
     """
-    lo, hi, tbox, P = fit
+    lo, hi, tlo, thi, P = fit
     nv = verts.shape[0]
     out = -np.ones(nv, dtype=np.int64)
     if tris.shape[0] == 0 or nv == 0:
@@ -308,14 +282,14 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tree, fit, M, tri_bone, tri_n
     for t in nb.prange(nth):
         _crossed_range(X, X0, F, verts, vside, tris, tree.roots, tree.child, tree.first,
                        tree.count, tree.slot, tree.rcen, tree.tloc, tree.tcorner, P, lo, hi,
-                       tbox, M, tri_bone, tri_normal, segA, segB, R, rest_sep, rest_tol, reach,
+                       tlo, thi, M, tri_bone, tri_normal, segA, segB, R, rest_sep, rest_tol, reach,
                        t, nth, out)
     return out
 
 
 @nb.njit(cache=True, nogil=True, fastmath=FAST)
 def _crossed_range(X, X0, F, verts, vside, tris, roots, child, first, count, slot, rcen,
-                   tloc, tcorner, P, lo, hi, tbox, M, tri_bone, tri_normal, segA, segB, R,
+                   tloc, tcorner, P, lo, hi, tlo, thi, M, tri_bone, tri_normal, segA, segB, R,
                    rest_sep, rest_tol, reach, first_v, step, out):
     """The per-vertex test of :func:`crossed_vertices` for ``verts[first_v::step]``."""
     sep2 = rest_sep * rest_sep
@@ -356,7 +330,7 @@ def _crossed_range(X, X0, F, verts, vside, tris, roots, child, first, count, slo
                     top += 1
                 continue
             for q in range(first[n], first[n] + count[n]):
-                if _tri_near2(px, py, pz, tbox, q) > best_d:
+                if _box_near2(px, py, pz, tlo, thi, q) > best_d:
                     continue
                 gx, gy, gz = rcen[q, 0] - rx, rcen[q, 1] - ry, rcen[q, 2] - rz
                 if gx * gx + gy * gy + gz * gz < sep2:

@@ -101,15 +101,19 @@ class JointRegions:
 
     def posed_segments(self, j: int, M: np.ndarray, memo: dict | None = None):
         """(2,3), (2,3): :meth:`rest_segments` of ``j`` posed by the skinning
-        matrices ``M``; every joint's at once, kept in ``memo`` (a frame's) when
-        given. Read-only."""
-        if memo is not None:
-            hit = memo.get("segments")
-            if hit is None:
-                hit = memo["segments"] = self._pose_segments(M)
-            return hit[0][j], hit[1][j]
-        A, B = self._pose_segments(M)
-        return A[j], B[j]
+        matrices ``M``. With ``memo`` (a frame's), every joint's are posed at
+        once and each joint's pair is kept: the same object for the whole
+        frame, which :meth:`crossed` takes as the mark of its pose. Read-only."""
+        if memo is None:
+            A, B = self._pose_segments(M)
+            return A[j], B[j]
+        hit = memo.get(("segments", j))
+        if hit is None:
+            AB = memo.get("segments")
+            if AB is None:
+                AB = memo["segments"] = self._pose_segments(M)
+            hit = memo[("segments", j)] = (AB[0][j], AB[1][j])
+        return hit
 
     def _pose_segments(self, M: np.ndarray):
         if not hasattr(self, "_rest_seg"):
@@ -122,17 +126,6 @@ class JointRegions:
         A.flags.writeable = B.flags.writeable = False
         return A, B
 
-    def posed(self, j: int, M: np.ndarray, memo: dict | None = None):
-        """What :meth:`crossed` needs of a pose (one value serves every pass
-        of the frame): joint ``j``'s posed bone segments, kept in ``memo`` (a
-        frame's) when given. Read-only."""
-        if memo is not None:
-            hit = memo.get(("posed", j))
-            if hit is None:
-                hit = memo[("posed", j)] = self.posed_segments(j, M, memo)
-            return hit
-        return self.posed_segments(j, M)
-
     def tree(self, j: int):
         """Joint ``j``'s :func:`triangle_trees` and its fit buffers."""
         if self._trees[j] is None:
@@ -144,9 +137,10 @@ class JointRegions:
                 j: int, sub: np.ndarray | None = None, posed=None) -> np.ndarray:
         """Per vertex of ``verts[j]`` (or of its subset ``sub``, positions into
         ``verts[j]``): the crossed triangle, -2 deep inside, -1 not crossed.
-        ``posed``: :meth:`posed` of ``(j, M)``, if already at hand."""
+        ``posed``: :meth:`posed_segments` of ``(j, M)`` with the frame's memo,
+        if already at hand."""
         fresh = posed is None
-        A, B = self.posed(j, M) if posed is None else posed
+        A, B = self.posed_segments(j, M) if posed is None else posed
         rad = self.radius[j]
         t = self.tris[j]
         v, side = self.verts[j], self.vside[j]
@@ -295,7 +289,7 @@ class Collision(Stage):
                     self._szone[regs.verts[j]][:, list(joints)].any(axis=1)))
                 if not len(sub):
                     continue
-            posed = regs.posed(j, fr.M, fr.memo)
+            posed = regs.posed_segments(j, fr.M, fr.memo)
             if upfront and planar:
                 # The bisector does not depend on where the skin crossed, so the
                 # half-space projection needs no detection pass before it.

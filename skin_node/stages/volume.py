@@ -347,7 +347,7 @@ class Volume(Stage):
         reach = regs.cell(j) + 2.0 * regs.emax
         sub = in_box(X, regs.verts[j], np.arange(len(regs.verts[j])),
                      np.concatenate([X[v[freed]], keep[freed]]), reach)
-        posed = regs.posed(j, fr.M, fr.memo)
+        posed = regs.posed_segments(j, fr.M, fr.memo)
         bad, tri = self._new_crossings(fr, j, sub, posed, v, keep)
         for r in (1.5 * regs.edge, 3.0 * regs.edge, reach, reach, reach):
             if not len(bad):
