@@ -174,8 +174,9 @@ def fit_tree(X, F, tris, tree, fit, full):
     that only grow still hold their triangles, so the search stays exact, and
     a recheck after a push-out touches a few boxes instead of every one.
     """
-    child, first, count, parent, leaf = tree.child, tree.first, tree.count, tree.parent, tree.leaf
-    tv, inc_ptr, inc, tloc = tree.tv, tree.inc_ptr, tree.inc, tree.tloc
+    child, first, count = tree.child, tree.first, tree.count
+    parent, leaf, tv, inc_ptr, inc, tloc = (tree.parent, tree.leaf, tree.tv, tree.inc_ptr,
+                                            tree.inc, tree.tloc)
     lo, hi, tlo, thi, snap = fit
     if full:
         for k in range(tv.shape[0]):
@@ -253,16 +254,16 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tree, fit, M, tri_bone, tri_n
     among equally near ones); with ``c`` its centre and ``n`` its unit normal,
     ``F = (p - c) . n``. ``n`` is the triangle's rest normal ``tri_normal``
     carried by its bone ``tri_bone`` (skinning matrices ``M``), not the
-    current one: a triangle crumpled flat in a
-    crease has a meaningless normal, the skin it belongs to still faces the
-    way its bone says. The vertex has passed through the skin when its
-    closest point is inside that face and ``F`` is negative now and below its
-    rest value ``F0`` (a vertex of a concave rest fold may already sit behind
-    a far plane: it has crossed only once it is further behind it than at
-    rest), and ``F0 > -rest_tol``. A candidate with no skin of side ``o``
-    within ``reach`` but deep in its flesh (closer than ``R[o] / 2`` to bone
-    ``o`` and farther than ``R[o]`` from the joint) has crossed too. ``nth``:
-    how many interleaved slices the vertices are dealt into, one per thread.
+    current one: a triangle crumpled flat in a crease has a meaningless
+    normal, the skin it belongs to still faces the way its bone says. The
+    vertex has passed through the skin when its closest point is inside that
+    face and ``F`` is negative now and below its rest value ``F0`` (a vertex
+    of a concave rest fold may already sit behind a far plane: it has crossed
+    only once it is further behind it than at rest), and ``F0 > -rest_tol``.
+    A candidate with no skin of side ``o`` within ``reach`` but deep in its
+    flesh (closer than ``R[o] / 2`` to bone ``o`` and farther than ``R[o]``
+    from the joint) has crossed too. ``nth``: how many interleaved slices the
+    vertices are dealt into, one per thread.
 
     The nearest triangle is exact (a stretched triangle counts from wherever
     its face is near): ``tree`` is :func:`triangle_trees` of ``tris`` and
@@ -282,8 +283,8 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tree, fit, M, tri_bone, tri_n
     for t in nb.prange(nth):
         _crossed_range(X, X0, F, verts, vside, tris, tree.roots, tree.child, tree.first,
                        tree.count, tree.slot, tree.rcen, tree.tloc, tree.tcorner, P, lo, hi,
-                       tlo, thi, M, tri_bone, tri_normal, segA, segB, R, rest_sep, rest_tol, reach,
-                       t, nth, out)
+                       tlo, thi, M, tri_bone, tri_normal, segA, segB, R, rest_sep, rest_tol,
+                       reach, t, nth, out)
     return out
 
 

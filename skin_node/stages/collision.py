@@ -80,6 +80,7 @@ class JointRegions:
         self._V0, self._F = character.V, F
         self._trees, self._fits = [None] * J, [None] * J
         self._fitted = [(None, None)] * J          # (posed, X) each fit is for
+        self._rest_seg = self._all_rest_segments()
 
     def rest_segments(self, j: int):
         """(2,3), (2,3): the parent side's bone into ``j`` and ``j``'s own bone."""
@@ -116,8 +117,6 @@ class JointRegions:
         return hit
 
     def _pose_segments(self, M: np.ndarray):
-        if not hasattr(self, "_rest_seg"):
-            self._rest_seg = self._all_rest_segments()
         A, B, pair = self._rest_seg
         Ms = M[pair]                                            # (J, 2, 4, 4)
         R, t = Ms[..., :3, :3], Ms[..., :3, 3]
@@ -152,9 +151,9 @@ class JointRegions:
         was, wasX = self._fitted[j]
         fit_tree(X, F, t, tree, fit, fresh or was is not posed or wasX is not X)
         self._fitted[j] = (None, None) if fresh else (posed, X)
-        return crossed_vertices(X, X0, F, v, side, t, tree, fit,
-                                np.ascontiguousarray(M), self.tri_bone, self.tri_normal, A, B, self.R[j], 3.0 * self.edge, 0.5 * rad, self.cell(j),
-                                numba.get_num_threads())
+        return crossed_vertices(X, X0, F, v, side, t, tree, fit, np.ascontiguousarray(M),
+                                self.tri_bone, self.tri_normal, A, B, self.R[j], 3.0 * self.edge,
+                                0.5 * rad, self.cell(j), numba.get_num_threads())
 
     def cell(self, j: int) -> float:
         """How near the other side's skin :meth:`crossed` looks, for joint ``j``
