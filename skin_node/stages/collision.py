@@ -160,6 +160,12 @@ class JointRegions:
         (three median edges, at least a quarter of the limb radius)."""
         return max(3.0 * self.edge, 0.25 * self.radius[j])
 
+    def longest_edge(self, j: int, X: np.ndarray) -> float:
+        """The longest edge of joint ``j``'s triangles in ``X``."""
+        P = X[self._F[self.tris[j]]]                              # (t, 3, 3)
+        return float(np.sqrt(((P - P[:, [1, 2, 0]]) ** 2).sum(axis=2).max())) \
+            if len(P) else 0.0
+
     def ring(self, j: int, sub: np.ndarray) -> np.ndarray:
         """Positions into ``verts[j]`` of ``sub`` and its one-ring neighbours in the region."""
         if self._pos is None:

@@ -340,13 +340,19 @@ class Volume(Stage):
         new = restore_region(*args, False)
         # Only skin the guards held back moved further than they let it: only
         # skin within the test's reach of where that was or is now can have
-        # changed (the reach: the detection cell and a stretched edge).
+        # changed. The reach: the detection cell and a stretched edge (two of
+        # the longest rest edges) or, where longer, the longest edge of the
+        # region's triangles before or after the move (a lowered arm
+        # stretches skin to several rest edges; no corner moved more than
+        # max_move).
         freed = self._m[:len(v)] > m_guarded + 1e-9
         if not freed.any():
             return new
         reach = regs.cell(j) + 2.0 * regs.emax
+        max_move = args[14]
+        retest = max(reach, regs.cell(j) + regs.longest_edge(j, X) + 2.0 * max_move)
         sub = in_box(X, regs.verts[j], np.arange(len(regs.verts[j])),
-                     np.concatenate([X[v[freed]], keep[freed]]), reach)
+                     np.concatenate([X[v[freed]], keep[freed]]), retest)
         posed = regs.posed_segments(j, fr.M, fr.memo)
         bad, tri = self._new_crossings(fr, j, sub, posed, v, keep)
         for r in (1.5 * regs.edge, 3.0 * regs.edge, reach, reach, reach):
@@ -367,7 +373,7 @@ class Volume(Stage):
                 break
             P = np.concatenate([X[v[back]], keep[back]])       # where it was and is back
             X[v[back]] = keep[back]
-            near = in_box(X, regs.verts[j], sub, P, reach)
+            near = in_box(X, regs.verts[j], sub, P, retest)
             bad, tri = self._new_crossings(fr, j, near, posed, v, keep)
         X[v] = keep
         return ratio
