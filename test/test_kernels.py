@@ -512,7 +512,7 @@ def _crossed(X, X0, F, verts=None, reach=0.05):
     tree = triangle_trees(X0, F, tris, np.zeros(len(F), dtype=np.int64))
     fit = tree_fit(tree)
     bone = np.array([[-1.0, 0.0, -0.05], [0.0, 0.0, -0.05]])
-    fit_tree(X, F, tris, tree, fit, True)
+    fit_tree(X, tree, fit, True)
     return crossed_vertices(X, X0, F, verts, np.ones(len(verts), dtype=np.int64), tris,
                             tree, fit, np.eye(4)[None], np.zeros(len(F), dtype=np.int64),
                             np.tile([0.0, 0.0, 1.0], (len(F), 1)), bone,
@@ -590,13 +590,13 @@ def test_boxes_grown_where_the_skin_moved_keep_the_search_exact():
     tris = np.arange(len(F))
     tree = triangle_trees(Xall0, F, tris, np.zeros(len(F), dtype=np.int64))
     grown, fresh = tree_fit(tree), tree_fit(tree)
-    fit_tree(Xall, F, tris, tree, grown, True)
+    fit_tree(Xall, tree, grown, True)
     rng = np.random.default_rng(1)
     X = Xall.copy()
     moved = rng.choice(len(Xall0) - len(verts), 30, replace=False)
     X[moved] += rng.normal(0.0, 0.015, (30, 3))
-    fit_tree(X, F, tris, tree, grown, False)
-    fit_tree(X, F, tris, tree, fresh, True)
+    fit_tree(X, tree, grown, False)
+    fit_tree(X, tree, fresh, True)
     bone = np.array([[-1.0, 0.0, -0.05], [0.0, 0.0, -0.05]])
     args = (np.eye(4)[None], np.zeros(len(F), dtype=np.int64),
             np.tile([0.0, 0.0, 1.0], (len(F), 1)), bone, bone + [1.0, 0.0, 0.0],

@@ -166,7 +166,7 @@ def tree_fit(tree: TriangleTree):
 
 
 @nb.njit(cache=True, nogil=True)
-def fit_tree(X, F, tris, tree, fit, full):
+def fit_tree(X, tree, fit, full):
     """Fit the boxes of ``tree`` (:func:`triangle_trees`) to the skin ``X``.
 
     ``full``: refit every box. Otherwise only the corners that moved since the

@@ -149,7 +149,7 @@ class JointRegions:
         # the frame's later calls only grow them where the skin has moved since.
         tree, fit = self.tree(j)
         was, wasX = self._fitted[j]
-        fit_tree(X, F, t, tree, fit, fresh or was is not posed or wasX is not X)
+        fit_tree(X, tree, fit, fresh or was is not posed or wasX is not X)
         self._fitted[j] = (None, None) if fresh else (posed, X)
         return crossed_vertices(X, X0, F, v, side, t, tree, fit, np.ascontiguousarray(M),
                                 self.tri_bone, self.tri_normal, A, B, self.R[j], 3.0 * self.edge,

@@ -314,18 +314,20 @@ class Volume(Stage):
             # back would balloon the elbow. The allowance falls linearly from 90
             # degrees to nothing at 180.
             fold = min(1.0, max(0.0, (np.pi - fr.angles[j]) / (0.5 * np.pi)))
+            max_move = cap * fold * regs.radius[j]
             args = (X, self.F, regs.tris[j], fr.G[j, :3, 3], v, self.rmob[j], self.rside[j],
                     fr.fade[j], A[j], B[j], regs.R[j], hops, self._ring_width[j],
-                    self.rvol0[j], cap * fold * regs.radius[j], self._g, self._m, 2)
+                    self.rvol0[j], max_move, self._g, self._m, 2)
             ratio = restore_region(*args, True)
             if ratio < 1.0 - checked and self.params["self_collision"]:
-                ratio = self._checked(fr, j, args, ratio, self._m[:len(v)].copy())
+                ratio = self._checked(fr, j, args, ratio, self._m[:len(v)].copy(), max_move)
             worst = min(worst, ratio)
         if reached:
             hops[self._queue[:reached]] = self._hop_limit
         fr.counts["region_volume_min"] = worst
 
-    def _checked(self, fr: Frame, j: int, args, ratio: float, m_guarded) -> float:
+    def _checked(self, fr: Frame, j: int, args, ratio: float, m_guarded,
+                 max_move: float) -> float:
         """Past the guards, where they leave region ``j`` short: skin within the
         other side's flesh radius, or next to a resolved contact, may as well
         swell away from that skin as into it. Move all of the region's mobile
@@ -333,7 +335,8 @@ class Volume(Stage):
         the move can have changed them), and put back the skin around every new
         crossing, over a growing radius, up to five times; if crossings remain,
         the whole region goes back to what the guards left. ``m_guarded``: the
-        mobilities of the guarded pass. Returns the region's volume ratio."""
+        mobilities of the guarded pass; ``max_move``: the most any skin moves
+        (``args``' own). Returns the region's volume ratio."""
         X, regs = fr.surface, self.regions
         v = self.rverts[j]
         keep = X[v].copy()
@@ -349,7 +352,6 @@ class Volume(Stage):
         if not freed.any():
             return new
         reach = regs.cell(j) + 2.0 * regs.emax
-        max_move = args[14]
         retest = max(reach, regs.cell(j) + regs.longest_edge(j, X) + 2.0 * max_move)
         sub = in_box(X, regs.verts[j], np.arange(len(regs.verts[j])),
                      np.concatenate([X[v[freed]], keep[freed]]), retest)
