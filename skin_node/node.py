@@ -31,9 +31,16 @@ the worker took it is counted as *skipped as stale*: the node never queues
 behind the input, and latency stays one frame. Because mapping happens in
 the callback, a skipped frame still updates the channels it carries.
 
+With ``workers`` > 1, that many threads each keep their own pipeline and
+take the newest pose whenever they are free, so frames overlap: a pose is
+stale only when every worker is busy. Results are published in the order
+their poses arrived. The deform kernels release the GIL, so two workers on
+two cores answer about 1.5 times as many poses as one.
+
 Parameter changes pass the set-parameters callback's checks and take effect
-at the start of the next frame; ``character``, ``surface_vertices``,
-``name_map``, ``weights`` and ``joint_names`` are read-only.
+at the start of the next frame each worker takes; ``character``,
+``surface_vertices``, ``name_map``, ``weights``, ``workers`` and
+``joint_names`` are read-only.
 """
 from __future__ import annotations
 
@@ -44,6 +51,7 @@ import threading
 import time
 from collections import Counter
 
+import numba
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
@@ -132,8 +140,17 @@ class SkinNode(Node):
         name_map = load_name_map(p("name_map")) if p("name_map") else None
         self._mapper = ChannelMapper(self.character.channel_names, name_map)
         self._pipeline_kwargs = {k: p(k) for k in skin_node.PIPELINE_PARAMS}
-        self._pipe = skin_node.Pipeline(self.character, stages=list(p("pipeline")),
-                                        **self._pipeline_kwargs)
+        workers = p("workers")
+        if workers > 1:
+            if self._pipeline_kwargs["warm_start"]:
+                raise ValueError(f"warm_start needs workers:=1 (each of {workers} workers "
+                                 "would carry the history of only the frames it took)")
+            # Workers call the parallel kernels at the same time: pick a threading
+            # layer that allows it (numba's own workqueue aborts the process).
+            numba.config.THREADING_LAYER = "threadsafe"
+        stages = list(p("pipeline"))
+        self._pipes = [skin_node.Pipeline(self.character, stages=stages, **self._pipeline_kwargs)
+                       for _ in range(workers)]
         self._frame_id = p("frame_id")
         t_warm = time.perf_counter()
         # Bent joints wake the solver and collision stages, and joints at their
@@ -142,29 +159,38 @@ class SkinNode(Node):
         # Limits of +-pi (a glTF skeleton's) have their middle at rest, so every
         # channel is also bent by 1 rad within its limits; and the volume stage's
         # checked swelling, which runs only where a region stays short, is forced
-        # on for the bent poses.
+        # on for the bent poses. Every worker's pipeline runs them (after the
+        # first, the kernels are compiled and this builds their lazy caches).
         limits = self.character.skeleton.limits
         q_mid = np.concatenate([np.zeros(3), limits.mean(axis=-1).ravel()])
         q_bent = np.concatenate([np.zeros(3), np.clip(1.0, limits[..., 0], limits[..., 1]).ravel()])
         q_far = np.concatenate([np.zeros(3), limits[..., 1].ravel()])
-        checked = self._pipe.params["volume_checked_below"]
-        for q, below in ((q_mid, 0.0), (q_bent, 0.0), (q_far, 0.0),
-                         (np.zeros_like(q_mid), checked)):
-            self._pipe.set_params(volume_checked_below=below)
-            if not np.all(np.isfinite(self._pipe.deform(q))):
-                raise ValueError(f"{p('character')}: warm-up pose deforms to non-finite vertices")
+        for pipe in self._pipes:
+            checked = pipe.params["volume_checked_below"]
+            for q, below in ((q_mid, 0.0), (q_bent, 0.0), (q_far, 0.0),
+                             (np.zeros_like(q_mid), checked)):
+                pipe.set_params(volume_checked_below=below)
+                if not np.all(np.isfinite(pipe.deform(q))):
+                    raise ValueError(f"{p('character')}: warm-up pose deforms to "
+                                     "non-finite vertices")
         warm_s = time.perf_counter() - t_warm
 
-        # Counters (written by the callback or the worker, read by the 1 Hz timer).
+        # Counters (written by the callback or the workers, read by the 1 Hz timer).
         self._rejected: Counter = Counter()
         self._received = self._processed = self._stale = self._failed = 0
         self._last_stamp_ns = -1
         self._period = {"frames": 0, "deform_ms": 0.0, "latency_ms": 0.0}
-        self._timings: dict = dict(self._pipe.timings)
-        # One-slot mailbox between the callback and the worker.
+        self._timings: dict = dict(self._pipes[0].timings)
+        # One-slot mailbox between the callback and the workers; every pose taken
+        # gets a number, and results are published in that order.
         self._cond = threading.Condition()
         self._pending: tuple | None = None
-        self._next: dict = {"pipe": None, "params": {}, "frame_id": None}
+        self._taken = self._published = 0
+        # What the set-parameters callback accepted, in full; each worker brings
+        # its pipeline up to ``version`` before its next frame.
+        self._config = {"version": 0, "stages": stages, "kwargs": dict(self._pipeline_kwargs),
+                        "frame_id": self._frame_id, "built": None}
+        self._announced = 0
         self._stopping = False
 
         self._points_pub = self.create_publisher(PointCloud2, "skin/points", QOS_STREAM)
@@ -173,8 +199,10 @@ class SkinNode(Node):
         self._diag_pub = self.create_publisher(DiagnosticArray, "skin/diagnostics", 10)
         self._mesh_pub.publish(mesh_to_msg(self.character.V, self.character.F))
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self._worker = threading.Thread(target=self._work, name="skin_worker", daemon=True)
-        self._worker.start()
+        self._workers = [threading.Thread(target=self._work, args=(w,), name=f"skin_worker{w}",
+                                          daemon=True) for w in range(workers)]
+        for t in self._workers:
+            t.start()
         self.create_subscription(JointState, "joint_states", self._on_joint_state,
                                  QOS_JOINT_STATES)
         self.create_timer(1.0, self._on_diagnostics_timer)
@@ -182,7 +210,7 @@ class SkinNode(Node):
             f"ready in {time.perf_counter() - t_start:.2f} s (warm-up deform {warm_s:.2f} s): "
             f"character '{self.character.name}' {len(self.character.V)} vertices "
             f"{len(self.character.F)} triangles {self.character.n_channels} channels, "
-            f"stages {list(p('pipeline'))}")
+            f"stages {stages}, {workers} worker{'s' if workers > 1 else ''}")
 
     # ------------------------------------------------------------ parameters
     def _declare_parameters(self) -> None:
@@ -202,6 +230,12 @@ class SkinNode(Node):
                         "or 'file' (the artist's, from a skinned glTF character)"))
         self.declare_parameter("pipeline", list(skin_node.DEFAULT_STAGES), ParameterDescriptor(
             type=SA, description=f"stages in order, from {list(skin_node.STAGE_NAMES)}"))
+        self.declare_parameter("workers", 1, ParameterDescriptor(
+            type=I, read_only=True, integer_range=[IntegerRange(from_value=1, to_value=16,
+                                                                step=0)],
+            description="frames deformed at once, each worker with its own pipeline; "
+                        "results are published in input order (2 on two cores answer "
+                        "about 1.5 times the poses of 1; warm_start needs 1)"))
         self.declare_parameter("frame_id", "world", ParameterDescriptor(
             type=S, description="frame of skin/points and skin/marker"))
         self.declare_parameter("name_map", "", ParameterDescriptor(
@@ -231,26 +265,43 @@ class SkinNode(Node):
                     if "pipeline" in updates else None)
         except ValueError as e:
             return SetParametersResult(successful=False, reason=str(e))
+        if core.get("warm_start") and len(self._pipes) > 1:
+            return SetParametersResult(successful=False, reason=(
+                f"warm_start needs workers:=1, not {len(self._pipes)}"))
         self._pipeline_kwargs = kwargs
         with self._cond:
-            self._next["params"].update(core)
-            self._next["pipe"] = pipe or self._next["pipe"]
-            self._next["frame_id"] = updates.get("frame_id", self._next["frame_id"])
+            c = self._config
+            c["version"] += 1
+            c["kwargs"] = dict(kwargs)
+            if pipe is not None:
+                c["stages"], c["built"] = list(updates["pipeline"]), pipe
+            c["frame_id"] = updates.get("frame_id", c["frame_id"])
         return SetParametersResult(successful=True)
 
-    def _apply_param_updates(self) -> None:
-        """Worker side: switch to what the set-parameters callback accepted."""
+    def _configure(self, pipe, version: int):
+        """Worker side: bring ``pipe`` (at ``version``) up to what the set-parameters
+        callback accepted. Returns (pipeline, version, frame_id)."""
         with self._cond:
-            nxt, self._next = self._next, {"pipe": None, "params": {}, "frame_id": None}
-        if nxt["frame_id"] is not None:
-            self._frame_id = nxt["frame_id"]
-        if nxt["pipe"] is not None:
-            self._pipe = nxt["pipe"]
-        if nxt["params"]:
-            self._pipe.set_params(**nxt["params"])
-        if nxt["pipe"] is not None or nxt["params"]:
-            self.get_logger().info(f"parameters applied: stages {self._pipe.stage_names}, "
-                                   f"{sorted(nxt['params'])}")
+            c = self._config
+            if c["version"] == version:
+                return pipe, version, c["frame_id"]
+            stages, kwargs = c["stages"], c["kwargs"]
+            built, version, frame_id = c["built"], c["version"], c["frame_id"]
+            if pipe.stage_names != stages and built is not None and built.stage_names == stages:
+                c["built"] = None                # the first worker takes the checked one
+            else:
+                built = None
+            announce = version > self._announced
+            self._announced = max(self._announced, version)
+        if pipe.stage_names != stages:
+            pipe = built or skin_node.Pipeline(self.character, stages=stages, **kwargs)
+        changed = {k: v for k, v in kwargs.items() if pipe.params[k] != v}
+        if changed:
+            pipe.set_params(**changed)
+        if announce:
+            self.get_logger().info(f"parameters applied: stages {pipe.stage_names}, "
+                                   f"{sorted(changed)}")
+        return pipe, version, frame_id
 
     # ------------------------------------------------------------ callbacks
     def _on_joint_state(self, msg: JointState) -> None:
@@ -273,43 +324,63 @@ class SkinNode(Node):
             if self._pending is not None:
                 self._stale += 1
             self._pending = (msg.header.stamp, q, time.perf_counter())
-            self._cond.notify()
+            self._cond.notify_all()
 
-    def _work(self) -> None:
-        """Worker thread: deform the newest pending pose and publish it."""
+    def _work(self, w: int) -> None:
+        """Worker ``w``: deform the newest pending pose, publish it in its turn."""
+        pipe, version = self._pipes[w], 0
         while True:
             with self._cond:
                 while self._pending is None and not self._stopping:
                     self._cond.wait()
                 if self._stopping:
                     return
-                stamp, q, t_received = self._pending
-                self._pending = None
+                (stamp, q, t_received), self._pending = self._pending, None
+                seq, self._taken = self._taken, self._taken + 1
+            V = None
             try:
-                self._process(stamp, q, t_received)
+                pipe, version, frame_id = self._configure(pipe, version)
+                self._pipes[w] = pipe
+                t0 = time.perf_counter()
+                V = pipe.deform(q)
+                deform_ms = 1e3 * (time.perf_counter() - t0)
+                if not np.all(np.isfinite(V)):
+                    V = None
+                    self._failed += 1
+                    self.get_logger().warning("deformed surface has NaN/Inf; frame dropped",
+                                              throttle_duration_sec=THROTTLE_S)
             except Exception as e:  # noqa: BLE001 - a bad frame must not stop the node
+                V = None
+                if not self._stopping:
+                    self._failed += 1
+                    self.get_logger().error(f"frame failed: {type(e).__name__}: {e}",
+                                            throttle_duration_sec=THROTTLE_S)
+            with self._cond:            # wait for the poses taken before this one
+                while self._published != seq and not self._stopping:
+                    self._cond.wait()
                 if self._stopping:
                     return
-                self._failed += 1
-                self.get_logger().error(f"frame failed: {type(e).__name__}: {e}",
-                                        throttle_duration_sec=THROTTLE_S)
+            try:
+                if V is not None:
+                    self._publish(V, stamp, frame_id, pipe, deform_ms, t_received)
+            except Exception as e:  # noqa: BLE001
+                if not self._stopping:
+                    self._failed += 1
+                    self.get_logger().error(f"publish failed: {type(e).__name__}: {e}",
+                                            throttle_duration_sec=THROTTLE_S)
+            finally:
+                with self._cond:
+                    self._published = seq + 1
+                    self._cond.notify_all()
 
-    def _process(self, stamp, q: np.ndarray, t_received: float) -> None:
-        self._apply_param_updates()
-        t0 = time.perf_counter()
-        V = self._pipe.deform(q)
-        deform_ms = 1e3 * (time.perf_counter() - t0)
-        if not np.all(np.isfinite(V)):
-            self._failed += 1
-            self.get_logger().warning("deformed surface has NaN/Inf; frame dropped",
-                                      throttle_duration_sec=THROTTLE_S)
-            return
-        header = Header(stamp=stamp, frame_id=self._frame_id)
+    def _publish(self, V: np.ndarray, stamp, frame_id: str, pipe, deform_ms: float,
+                 t_received: float) -> None:
+        header = Header(stamp=stamp, frame_id=frame_id)
         self._points_pub.publish(vertices_to_point_cloud2(V, header))
         if self._marker_pub.get_subscription_count() > 0:
             self._marker_pub.publish(triangle_list_marker_cdr(V, self.character.F, header))
         self._processed += 1
-        self._timings = dict(self._pipe.timings)
+        self._timings = dict(pipe.timings)
         with self._cond:
             self._period["frames"] += 1
             self._period["deform_ms"] += deform_ms
@@ -350,11 +421,13 @@ class SkinNode(Node):
                 f"{values['ms_receive_to_publish']:.2f} ms | {message}")
 
     def stop(self) -> None:
-        """Stop the worker (it finishes the frame it is on)."""
+        """Stop the workers (each finishes the frame it is on)."""
         with self._cond:
             self._stopping = True
-            self._cond.notify()
-        self._worker.join(timeout=1.5)
+            self._cond.notify_all()
+        deadline = time.monotonic() + 1.5
+        for t in self._workers:
+            t.join(timeout=max(0.0, deadline - time.monotonic()))
 
 
 _SETTING_UP = threading.Event()

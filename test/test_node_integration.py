@@ -198,6 +198,28 @@ def test_burst_processes_newest_and_counts_stale(tmp_path):
     assert out == sorted(set(out)) and set(out) <= set(valid)
 
 
+def test_two_workers_publish_in_order_what_one_pipeline_gives(tmp_path):
+    stream, valid, _ = arm_stream(n_valid=60, hz=400.0, with_bad=False)
+    write_bag(tmp_path / "in", "mcap", stream)
+    with arm_node(tmp_path, "-p", "workers:=2") as (proc, env, log):
+        play_and_record(env, tmp_path / "in", tmp_path / "out")
+        assert "2 workers" in log.read_text()
+    clouds, diag = read_outputs(tmp_path / "out")
+    out = [stamp_ns(c) for c in clouds]
+    processed, stale = int(diag["frames_processed"]), int(diag["frames_skipped_stale"])
+    assert processed == len(out) and processed + stale == len(valid) == int(diag["frames_received"])
+    assert out == sorted(set(out)) and set(out) <= set(valid), "published out of input order"
+    assert out[-1] == valid[-1]
+    # Each worker's pipeline gives what a single one does: a pose's skin
+    # depends on that pose alone, not on which frames a worker took before.
+    ch = skin_node.load_character("arm", surface_vertices=ARM_VERTICES, progress=False)
+    pipe = skin_node.Pipeline(ch)
+    poses = {t: np.array(msg.position) for t, msg in stream}
+    for c in clouds[::3]:
+        ref = pipe.deform(poses[stamp_ns(c)])
+        assert np.abs(point_cloud2_to_vertices(c) - ref).max() < 1e-6
+
+
 def _pr2_or_skip() -> Path:
     if not (PR2_BAG / "metadata.yaml").exists():
         pytest.skip(f"real PR2 bag not found at {PR2_BAG}")
@@ -344,6 +366,7 @@ def test_signal_while_busy_exits_zero_within_2_s(tmp_path, sig):
     (None, ("-p", "iterations:=-3")),            # bad parameter, before any file is read
     (None, ("-p", "weights:=artist")),           # neither automatic nor file
     (None, ("-p", "weights:=file")),             # the built-in arm has no file weights
+    (None, ("-p", "warm_start:=true", "-p", "workers:=2")),  # history needs one worker
 ])
 def test_bad_start_up_is_one_line_and_non_zero(tmp_path, content, args):
     path = tmp_path / "character.yaml"
@@ -362,7 +385,7 @@ def test_bad_start_up_is_one_line_and_non_zero(tmp_path, content, args):
 
 def test_params_files_hold_only_declared_valid_parameters():
     node_params = {"character", "surface_vertices", "weights", "pipeline", "frame_id",
-                   "name_map"}
+                   "name_map", "workers"}
     for name in ("arm", "humanoid"):
         params = yaml.safe_load((REPO / "config" / f"{name}.yaml").read_text())
         params = params["skin_node"]["ros__parameters"]
