@@ -310,14 +310,17 @@ def report(out: Path, quick: bool = False, ros: bool = True, progress: bool = Tr
                          jitter_frames=100 if quick else 300, out=out, progress=progress)
     mem = run_memory("arm:2000" if quick else "humanoid:24000", 300 if quick else 1000,
                      100 if quick else 200, out=out, progress=progress)
-    lat = None
+    lats = []
     if ros:
         try:
             from .ros_latency import measure_latency
-            lat = measure_latency(seconds=5 if quick else 10,
-                                  surface_vertices=2000 if quick else 24000,
-                                  character="arm" if quick else "humanoid")
-            write_json(lat, out / "ros_latency.json")
+            # one worker (the node's default) and two (config/humanoid.yaml)
+            for workers in (1, 2):
+                lats.append(measure_latency(seconds=5 if quick else 10,
+                                            surface_vertices=2000 if quick else 24000,
+                                            character="arm" if quick else "humanoid",
+                                            params=[f"workers:={workers}"]))
+            write_json(lats, out / "ros_latency.json")
         except Exception as e:  # noqa: BLE001 - ROS may be missing; the rest still stands
             print(f"skin_bench: ros-latency skipped: {type(e).__name__}: {e}", file=sys.stderr)
     md = ["## Benchmark summary", "",
@@ -334,7 +337,7 @@ def report(out: Path, quick: bool = False, ros: bool = True, progress: bool = Tr
                                    for r in stab if r["method"] == m)
               for m in dict.fromkeys(r["method"] for r in stab)), "",
           memory_line(mem)]
-    if lat:
+    for lat in lats:
         md += ["", latency_line(lat)]
     text = "\n".join(md) + "\n"
     (out / "summary.md").write_text(text)
@@ -349,7 +352,10 @@ def latency_line(lat: dict) -> str:
     return (f"ROS latency ({scene}, {lat['rate_hz']:.0f} Hz "
             f"for {lat['seconds']:.0f} s): p50 {lat['latency_ms_p50']:.1f} ms, p99 "
             f"{lat['latency_ms_p99']:.1f} ms, {lat['outputs']} outputs for {lat['inputs']} inputs, "
-            f"node skipped {lat['skipped_stale']} as stale")
+            f"node skipped {lat['skipped_stale']} as stale"
+            + (f", node resident {lat['node_rss_mb']:.0f} MB"
+               if np.isfinite(lat.get("node_rss_mb", np.nan)) else "")
+            + (f" ({', '.join(lat['params'])})" if lat.get("params") else ""))
 
 
 # ----------------------------------------------------------------------- CLI
