@@ -32,10 +32,15 @@ def vertices_to_point_cloud2(V: np.ndarray, header: Header) -> PointCloud2:
     if V.ndim != 2 or V.shape[1] != 3:
         raise ValueError(f"V must have shape (n, 3), got {V.shape}")
     n = V.shape[0]
-    return PointCloud2(
+    msg = PointCloud2(
         header=header, height=1, width=n, fields=list(_XYZ_FIELDS), is_bigendian=False,
-        point_step=_POINT_STEP, row_step=_POINT_STEP * n,
-        data=array.array("B", V.tobytes()), is_dense=bool(np.isfinite(V).all()))
+        point_step=_POINT_STEP, row_step=_POINT_STEP * n, is_dense=bool(np.isfinite(V).all()))
+    # Set after construction: the constructor copies ``data`` byte by byte into
+    # a new array (0.35 ms for 24k points), the setter keeps an array as it is.
+    data = array.array("B")
+    data.frombytes(V.reshape(-1).view(np.uint8))
+    msg.data = data
+    return msg
 
 
 def point_cloud2_to_vertices(msg: PointCloud2) -> np.ndarray:

@@ -262,8 +262,7 @@ class PBD(Stage):
         f = fr.fade
         if p["active_regions"] and np.any((f > 0) & (f < 1)):
             # Joints still in their fade band pass on only part of the correction.
-            zf = (vzone * f[fr.bent]).max(axis=1)
-            X[verts] = fr.tet_base[verts] + zf[:, None] * (X[verts] - fr.tet_base[verts])
+            _fade(X, fr.tet_base, verts, vzone, f[fr.bent])
         solver.embed_update(fr.surface_base, X, fr.tet_base, r.Etet, r.Ebary, sverts, fr.surface)
 
 
@@ -291,3 +290,17 @@ def _max_move(X, prev, idx):
         d = (X[i, 0] - prev[i, 0]) ** 2 + (X[i, 1] - prev[i, 1]) ** 2 + (X[i, 2] - prev[i, 2]) ** 2
         m = max(m, d)
     return np.sqrt(m)
+
+
+@nb.njit(cache=True, nogil=True)
+def _fade(X, base, verts, vzone, fade):
+    """``X_i = base_i + z_i (X_i - base_i)`` for ``i`` in ``verts``, ``z_i`` the
+    largest ``vzone[a, j] * fade[j]`` over the bent joints ``j`` (row ``a`` of
+    ``vzone`` is vertex ``verts[a]``'s zone membership)."""
+    for a in range(verts.shape[0]):
+        z = vzone[a, 0] * fade[0]
+        for j in range(1, fade.shape[0]):
+            z = max(z, vzone[a, j] * fade[j])
+        i = verts[a]
+        for d in range(3):
+            X[i, d] = base[i, d] + z * (X[i, d] - base[i, d])
