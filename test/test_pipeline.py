@@ -114,6 +114,24 @@ def test_parent_region_check_clears_the_chest_under_lowered_arms():
     assert crossings() == (0, 0)
 
 
+def test_recheck_after_push_out_reaches_as_far_as_the_test():
+    """Built-in humanoid at 24k, the squat's deepest frames (knees at 149
+    degrees): pushing calf skin out drags its triangles over thigh skin that
+    the push-out's recheck must cover. It used to recheck two median edges
+    around each pushed vertex, less than the test's own reach, and one thigh
+    vertex stayed through the skin in each of these frames."""
+    from skin_node import make_clip
+    ch = load_character("humanoid", progress=False)
+    regions = JointRegions(ch)
+    frames = make_clip("squat", ch.skeleton).frames
+    pipe = Pipeline(ch)
+    left = []
+    for k in (225, 226, 253, 254):
+        V = pipe.deform(frames[k])
+        left.append(count_crossings(V, ch.V, ch.F, pipe.last_frame.M, regions))
+    assert left == [0, 0, 0, 0]
+
+
 @pytest.mark.parametrize("case", ["arm", "humanoid"])
 def test_no_skin_crossings_after_collision(case, arm, humanoid):
     ch = arm if case == "arm" else humanoid

@@ -369,6 +369,55 @@ def _crossed_range(X, X0, F, verts, vside, tris, roots, child, first, count, slo
 
 
 @nb.njit(cache=True, nogil=True)
+def dragged_reach(X, tree, tside, verts, reach, out, sides):
+    """How far moving each vertex of ``verts`` can change the crossing test,
+    and for which side's skin.
+
+    A vertex drags the triangles of ``tree`` (:func:`triangle_trees`) it is a
+    corner of, and a triangle lies within its corner's longest edge of it;
+    the test looks ``reach`` beyond a triangle. Per vertex, raises ``out`` to
+    ``reach`` plus that edge in ``X``, and sets bit ``s`` of ``sides`` for
+    each side ``s`` (``tside``, per region triangle) among those triangles:
+    only the other side's skin is tested against them."""
+    tv, inc_ptr, inc, tcorner, slot = tree.tv, tree.inc_ptr, tree.inc, tree.tcorner, tree.slot
+    for a in range(verts.shape[0]):
+        i = verts[a]
+        k = np.searchsorted(tv, i)
+        if k >= tv.shape[0] or tv[k] != i:
+            continue
+        best = 0.0
+        for b in range(inc_ptr[k], inc_ptr[k + 1]):
+            q = inc[b]
+            sides[a] |= 1 << tside[slot[q]]
+            for e in range(3):
+                u = tcorner[q, e]
+                best = max(best, (X[u, 0] - X[i, 0]) ** 2 + (X[u, 1] - X[i, 1]) ** 2
+                           + (X[u, 2] - X[i, 2]) ** 2)
+        out[a] = max(out[a], reach + math.sqrt(best))
+
+
+@nb.njit(cache=True, nogil=True)
+def near_dragged(X, verts, vside, P, R, sides):
+    """Positions into ``verts`` (sides ``vside``) of the vertices within
+    ``R[b]`` of a point ``P[b]`` whose ``sides[b]`` (:func:`dragged_reach`)
+    has the other side's bit."""
+    out = np.empty(verts.shape[0], dtype=np.int64)
+    n = 0
+    for a in range(verts.shape[0]):
+        i = verts[a]
+        o = 1 - vside[a]
+        for b in range(P.shape[0]):
+            if not (sides[b] >> o) & 1:
+                continue
+            d = (X[i, 0] - P[b, 0]) ** 2 + (X[i, 1] - P[b, 1]) ** 2 + (X[i, 2] - P[b, 2]) ** 2
+            if d < R[b] * R[b]:
+                out[n] = a
+                n += 1
+                break
+    return out[:n]
+
+
+@nb.njit(cache=True, nogil=True)
 def near_points(X, verts, P, r):
     """Positions into ``verts`` of the vertices within ``r`` of any point of ``P``."""
     out = np.empty(verts.shape[0], dtype=np.int64)
@@ -483,30 +532,3 @@ def halfspace_project(X, verts, vside, crossed, segA, segB, R, c, n, eps, halfsp
             moved[k] = i
             k += 1
     return k
-
-
-@nb.njit(cache=True, nogil=True)
-def ring_positions(ids, ptr, nbr, pos, mark):
-    """Positions (``pos[v]``, -1 outside the region) of ``ids`` and their one-ring
-    neighbours, each once, sorted; ``mark`` (n,) bool scratch, left all False."""
-    out = np.empty(ids.shape[0] * 16 + 16, dtype=np.int64)
-    k = 0
-    for a in range(ids.shape[0]):
-        i = ids[a]
-        for q in range(-1, ptr[i + 1] - ptr[i]):
-            v = i if q < 0 else nbr[ptr[i] + q]
-            if pos[v] >= 0 and not mark[v]:
-                mark[v] = True
-                if k == out.shape[0]:
-                    grown = np.empty(2 * k, dtype=np.int64)
-                    grown[:k] = out
-                    out = grown
-                out[k] = pos[v]
-                k += 1
-    res = np.sort(out[:k])
-    for a in range(ids.shape[0]):
-        i = ids[a]
-        mark[i] = False
-        for q in range(ptr[i], ptr[i + 1]):
-            mark[nbr[q]] = False
-    return res

@@ -6,9 +6,8 @@ import math
 import numba
 import numpy as np
 
-from ..kernels.collision import (crossed_vertices, fit_tree, halfspace_project, merge_sorted,
-                                 near_points, push_out, ring_positions, tree_fit,
-                                 triangle_trees)
+from ..kernels.collision import (crossed_vertices, dragged_reach, fit_tree, halfspace_project,
+                                 merge_sorted, near_dragged, push_out, tree_fit, triangle_trees)
 from ..rigging.weights import point_segment_distance
 from .base import Frame, KeyedCache, Stage
 
@@ -73,7 +72,6 @@ class JointRegions:
         self.emax = float(e.max())
         self.radius = r.radius
         self._key, self._sets = None, None
-        self._n, self._ptr, self._adj, self._pos = len(character.V), r.adj_ptr, r.adj, None
         # Trees are made on first use: three stages keep regions and only the
         # joints that fold are tested (every region's tree and fit: 6 MB on the
         # 24k humanoid, per stage).
@@ -165,17 +163,6 @@ class JointRegions:
         P = X[self._F[self.tris[j]]]                              # (t, 3, 3)
         return float(np.sqrt(((P - P[:, [1, 2, 0]]) ** 2).sum(axis=2).max())) \
             if len(P) else 0.0
-
-    def ring(self, j: int, sub: np.ndarray) -> np.ndarray:
-        """Positions into ``verts[j]`` of ``sub`` and its one-ring neighbours in the region."""
-        if self._pos is None:
-            self._pos = {}
-        if j not in self._pos:
-            pos = -np.ones(self._n, dtype=np.int64)
-            pos[self.verts[j]] = np.arange(len(self.verts[j]))
-            self._pos[j] = pos
-            self._mark = np.zeros(self._n, dtype=np.bool_)
-        return ring_positions(self.verts[j][sub], self._ptr, self._adj, self._pos[j], self._mark)
 
     def active(self, bent: np.ndarray):
         """Joints of the bent joints' regions (cached per set of bent joints)."""
@@ -327,6 +314,11 @@ class Collision(Stage):
                 # Residuals (creases the plane cannot separate): push each crossed
                 # vertex out in front of the skin it crossed, along that skin's normal.
                 tri = hit >= 0
+                moved = v[crossed]
+                tree = regs.tree(j)[0]
+                was = X[moved]
+                drag, sides = np.zeros(len(moved)), np.zeros(len(moved), dtype=np.int64)
+                dragged_reach(X, tree, regs.tside[j], moved, regs.cell(j), drag, sides)
                 push_out(X, self.V0, self.F, fr.M, regs.tri_bone, regs.tri_normal, v[tri],
                          hit[tri], eps)
                 fr.touched.append(v[tri])
@@ -338,10 +330,13 @@ class Collision(Stage):
                     fr.touched.append(v[deep])
                 pushed += int(crossed.sum())
                 where = np.flatnonzero(crossed) if sub is None else sub[crossed]
-                # A pushed vertex drags its triangles over the skin facing it, which
-                # is not in its one ring: recheck everything near it too.
-                near = near_points(X, regs.verts[j], X[regs.verts[j][where]],
-                                   2.0 * regs.edge)
-                sub = merge_sorted(regs.ring(j, where), near)
+                # Recheck what moved, and every vertex the moves can have changed:
+                # a pushed vertex drags its triangles, up to its longest edge away,
+                # over the other side's skin near them, before or after the push.
+                dragged_reach(X, tree, regs.tside[j], moved, regs.cell(j), drag, sides)
+                near = near_dragged(X, regs.verts[j], regs.vside[j],
+                                    np.concatenate([was, X[moved]]),
+                                    np.concatenate([drag, drag]), np.concatenate([sides, sides]))
+                sub = merge_sorted(where, near)
         fr.counts["projected"] = projected
         fr.counts["pushed"] = pushed
