@@ -201,3 +201,18 @@ def test_ros_latency_bad_character_is_one_line_and_exit_2(capsys):
     assert len(err) == 1 and err[0].startswith("skin_bench ros-latency: error: arm: weights")
     assert main(["--character", "no_such_character.glb", "--seconds", "1"]) == 2
     assert "no_such_character.glb" in capsys.readouterr().err
+
+
+def test_ablation_shows_what_each_part_buys(tmp_path, capsys):
+    """skin_bench ablation: every variant gets a row, and leaving out the
+    collision or the volume stage costs what they are there for."""
+    assert cli.main(["ablation", "--scenes", "arm:2000", "--clips", "elbow_bend", "--stride",
+                     "10", "--out", str(tmp_path), "--no-progress"]) == 0
+    table = capsys.readouterr().out
+    runs = {r["method"]: r for r in json.loads((tmp_path / "runs.json").read_text())["runs"]}
+    assert set(runs) == {"dqs", "default"} | {n for n, _, _ in cli.ABLATIONS}
+    for _, _, what in cli.ABLATIONS:
+        assert f"| {what} | arm:2000 | elbow_bend |" in table
+    assert runs["default"]["crossings_max"] == 0 < runs["no-collision"]["crossings_max"]
+    assert runs["no-volume"]["region_volume_ratio_deepest"] < \
+        runs["default"]["region_volume_ratio_deepest"] - 0.02

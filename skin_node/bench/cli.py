@@ -7,6 +7,7 @@ Subcommands (``run`` is the default when the first argument is an option)::
     skin_bench run --pipelines '{"name": "dqs+pbd", "stages": ["dqs", "pbd"]}' ...
     skin_bench stability --pipelines lbs,default --long-frames 100000
     skin_bench memory --scene humanoid:24000 --frames 3000
+    skin_bench ablation --scenes humanoid:24000 --clips walk,squat   # each part's worth
     skin_bench ros-latency --seconds 10
     skin_bench report            # everything, into bench_results/, prints a markdown table
 
@@ -208,6 +209,54 @@ def stage_table(runs: list, method: str = "default") -> str:
     return "\n".join(lines)
 
 
+# ------------------------------------------------------------------ ablation
+#: The default pipeline with one part taken out or cut down: (name, params, what).
+ABLATIONS = (
+    ("no-solve", {"iterations": 0}, "no PBD solve (stage 1 straight to smoothing)"),
+    ("no-smooth", {"smoothing": 0.0}, "no smoothing"),
+    ("smooth-2", {"smoothing_iterations": 2}, "2 smoothing passes, not 4"),
+    ("no-collision", {"self_collision": False}, "no collision stage"),
+    ("no-parent-check", {"collision_parent": False}, "no check of the folding joints' parent"),
+    ("no-volume", {"volume_preserve": False}, "no volume stage"),
+    ("whole-mesh", {"active_regions": False, "active_threshold": 0.0},
+     "solve the whole tet mesh, not the bent joints' zones"),
+)
+
+
+def run_ablation(scenes=("humanoid:24000",), clips=("walk", "squat"), stride: int = 2,
+                 out: Path | None = None, progress: bool = True) -> dict:
+    """The default pipeline against each of :data:`ABLATIONS` (and DQS alone):
+    what each part costs per frame and what leaving it out costs in accuracy."""
+    pipes = ["dqs", "default"] + [json.dumps({"name": n, "preset": "default", "params": p})
+                                  for n, p, _ in ABLATIONS]
+    return run_bench(pipes, list(scenes), list(clips), stride=stride, reference=False,
+                     ref_frames=0, out=out, charts_=False, progress=progress)
+
+
+def ablation_table(runs: list) -> str:
+    """Each variant's time against the default's on the same scene and clip, and
+    its accuracy."""
+    what = {"dqs": "DQS alone (stage 1)", "default": "the default pipeline",
+            **{n: w for n, _, w in ABLATIONS}}
+    base = {(r["scene"], r["motion"]): r for r in runs if r["method"] == "default"}
+    f = lambda v, d=1: "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) \
+        else f"{v:.{d}f}"  # noqa: E731
+    lines = ["| variant | scene | clip | ms p50 (against default) | joint region at deepest "
+             "bend / worst error | collapse / bulge (mm) | crossings (max) | jitter (mm, "
+             "median / max) |", "|---|---|---|---|---|---|---|---|"]
+    for r in runs:
+        b = base.get((r["scene"], r["motion"]))
+        d = r["ms_total_p50"] - b["ms_total_p50"] if b else float("nan")
+        lines.append(
+            f"| {what.get(r['method'], r['method'])} | {r['scene']} | {r['motion']} | "
+            f"{f(r['ms_total_p50'])} ({'+' if d >= 0 else ''}{f(d)}) | "
+            f"{f(r['region_volume_ratio_deepest'], 3)} / "
+            f"{f(100 * r['region_volume_error_max'])}% | "
+            f"{f(r['collapse_mm'])} / {f(r['bulge_mm'])} | {f(r['crossings_max'], 0)} | "
+            f"{f(r.get('jitter_mm_p50'))} / {f(r.get('jitter_mm_max'))} |")
+    return "\n".join(lines)
+
+
 # ----------------------------------------------------------------- stability
 def run_stability(pipelines, scene="arm:2000", long_frames=100_000, jitter_frames=1000,
                   cases=None, out: Path | None = None, progress=True) -> list:
@@ -403,6 +452,13 @@ def _parser() -> argparse.ArgumentParser:
     m.add_argument("--print-json", action="store_true", help=argparse.SUPPRESS)
     common(m)
 
+    b = sub.add_parser("ablation", help="the default pipeline with each part left out: "
+                                        "time against accuracy")
+    b.add_argument("--scenes", default="humanoid:24000")
+    b.add_argument("--clips", default="walk,squat")
+    b.add_argument("--stride", type=int, default=2, help="use every n-th clip frame")
+    common(b)
+
     sub.add_parser("ros-latency", help="input-to-output latency of the node", add_help=False)
 
     p = sub.add_parser("report", help="regenerate bench_results/ and print a markdown table")
@@ -432,6 +488,10 @@ def main(argv: list | None = None) -> int:
             print(markdown_table(res["runs"]))
             if any(r["method"] == "default" for r in res["runs"]):
                 print("\n" + stage_table(res["runs"]))
+            print(f"\nwritten to {a.out}/")
+        elif a.cmd == "ablation":
+            res = run_ablation(_list(a.scenes), _list(a.clips), a.stride, a.out, prog)
+            print(ablation_table(res["runs"]))
             print(f"\nwritten to {a.out}/")
         elif a.cmd == "stability":
             res = run_stability(_pipelines(a.pipelines), a.scene, a.long_frames, a.jitter_frames,
