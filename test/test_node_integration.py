@@ -220,6 +220,55 @@ def test_two_workers_publish_in_order_what_one_pipeline_gives(tmp_path):
         assert np.abs(point_cloud2_to_vertices(c) - ref).max() < 1e-6
 
 
+def test_two_workers_both_take_a_parameter_change(tmp_path):
+    import rclpy
+    import rclpy.executors
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+
+    names = character_skeleton("arm").channel_names
+    poses, got = {}, []
+    with arm_node(tmp_path, "-p", "workers:=2") as (proc, env, log):
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=int(env["ROS_DOMAIN_ID"]))
+        try:
+            node = rclpy.create_node("skin_node_workers_test", context=ctx)
+            ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
+            ex.add_node(node)
+            node.create_subscription(PointCloud2, "skin/points", got.append, 100)
+            client = AsyncParameterClient(node, "skin_node")
+            assert client.wait_for_services(10.0)
+            fut = client.set_parameters([Parameter("pipeline", value=["dqs", "pbd", "smooth"]),
+                                         Parameter("smoothing", value=0.0)])
+            ex.spin_until_future_complete(fut, timeout_sec=10.0)
+            assert [r.successful for r in fut.result().results] == [True, True]
+            fut = client.set_parameters([Parameter("warm_start", value=True)])
+            ex.spin_until_future_complete(fut, timeout_sec=10.0)
+            assert not fut.result().results[0].successful     # history needs one worker
+            pub = node.create_publisher(JointState, "joint_states", 100)
+            deadline = time.monotonic() + 10.0
+            while not pub.get_subscription_count() and time.monotonic() < deadline:
+                ex.spin_once(timeout_sec=0.05)
+            # A burst: both workers are idle at its start, so each takes a pose.
+            for i in range(40):
+                q = np.zeros(len(names))
+                q[names.index("elbow_rz")] = 0.06 * i
+                poses[10**9 + i * 10**6] = q
+                pub.publish(joint_state(10**9 + i * 10**6, names, q))
+            deadline = time.monotonic() + 10.0
+            while time.monotonic() < deadline and (not got or stamp_ns(got[-1]) != max(poses)):
+                ex.spin_once(timeout_sec=0.1)
+        finally:
+            rclpy.try_shutdown(context=ctx)
+        assert log.read_text().count("parameters applied") == 1
+    assert len(got) >= 2 and stamp_ns(got[-1]) == max(poses)
+    ch = skin_node.load_character("arm", surface_vertices=ARM_VERTICES, progress=False)
+    pipe = skin_node.Pipeline(ch, ["dqs", "pbd", "smooth"], smoothing=0.0)
+    for c in got:           # whichever worker deformed it, the new settings did
+        ref = pipe.deform(poses[stamp_ns(c)])
+        assert np.abs(point_cloud2_to_vertices(c) - ref).max() < 1e-6
+
+
 def _pr2_or_skip() -> Path:
     if not (PR2_BAG / "metadata.yaml").exists():
         pytest.skip(f"real PR2 bag not found at {PR2_BAG}")
