@@ -174,6 +174,10 @@ class SkinNode(Node):
                     raise ValueError(f"{p('character')}: warm-up pose deforms to "
                                      "non-finite vertices")
         warm_s = time.perf_counter() - t_warm
+        if workers > 1 and numba.threading_layer() == "workqueue":
+            raise ValueError(f"workers:={workers} needs numba's omp or tbb threading layer "
+                             "(its workqueue layer aborts on concurrent calls); only "
+                             "workqueue could be loaded here")
 
         # Counters (written by the callback or the workers, read by the 1 Hz timer).
         self._rejected: Counter = Counter()
