@@ -8,6 +8,7 @@ on localhost, replays a rosbag2 bag written here with ``rosbags`` through
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import signal
@@ -267,6 +268,27 @@ def test_two_workers_both_take_a_parameter_change(tmp_path):
     for c in got:           # whichever worker deformed it, the new settings did
         ref = pipe.deform(poses[stamp_ns(c)])
         assert np.abs(point_cloud2_to_vertices(c) - ref).max() < 1e-6
+
+
+def test_ros_latency_benchmark_measures_the_node(tmp_path):
+    """skin_bench ros-latency end to end on the arm: every pose it sends is
+    received, answered or counted stale, and it reads stamps, memory and the
+    node's parameters back."""
+    env = _env()
+    out = tmp_path / "latency.json"
+    cmd = _command("skin_bench", "skin_node.bench.cli") + [
+        "ros-latency", "--character", "arm", "--surface-vertices", str(ARM_VERTICES),
+        "--seconds", "2", "--rate", "60", "--param", "workers:=2", "--out", str(out),
+        "--domain", env["ROS_DOMAIN_ID"]]
+    res = subprocess.run(cmd, env=env, cwd=REPO, capture_output=True, text=True, timeout=400)
+    assert res.returncode == 0, res.stdout + res.stderr
+    lat = json.loads(out.read_text())
+    assert lat["inputs"] in (120, 121) and lat["node_received"] == lat["inputs"]
+    assert lat["outputs"] + lat["skipped_stale"] == lat["inputs"]
+    assert lat["outputs"] >= lat["inputs"] // 2
+    assert 0.0 < lat["latency_ms_p50"] <= lat["latency_ms_p99"] < 1000.0
+    assert 50.0 < lat["node_rss_mb"] < 1500.0 and lat["params"] == ["workers:=2"]
+    assert "(workers:=2)" in res.stdout
 
 
 def _pr2_or_skip() -> Path:
