@@ -289,8 +289,8 @@ class Collision(Stage):
                 if plane is not None:
                     projected += self._halfspace(X, fr, j, plane, None, eps, posed)
             for _ in range(int(self.params["collision_passes"])):
-                # After a push-out only the pushed vertices and their neighbours can
-                # still cross: later passes check just those.
+                # After a push-out only the pushed vertices and the skin their moves
+                # can have changed may cross anew: later passes check just those.
                 hit = regs.crossed(X, self.V0, self.F, fr.M, j, sub, posed)
                 crossed = hit != -1
                 if not crossed.any():
