@@ -167,7 +167,20 @@ def energy_value(X, t, m, ks, rest):
 
 
 @nb.njit(cache=True, inline="always")
-def energy_constraint(X, t, w, m, ks, rest, k, alpha, lam, dp):
+def _spring(X, i, cx, cy, cz, ka, ra):
+    """One spring of the energy constraint: ``g_i`` (below), ``|p_i - p0| - d_i``
+    and its energy ``1/2 k_i (|p_i - p0| - d_i)^2``."""
+    dx, dy, dz = X[i, 0] - cx, X[i, 1] - cy, X[i, 2] - cz
+    L = math.sqrt(dx * dx + dy * dy + dz * dz)
+    e = L - ra
+    if L > _EPS:
+        f = ka * e / L
+        return f * dx, f * dy, f * dz, e, 0.5 * ka * e * e
+    return 0.0, 0.0, 0.0, e, 0.5 * ka * e * e
+
+
+@nb.njit(cache=True, inline="always")
+def energy_step(X, t, w, m, ks, rest, k, alpha, lam):
     """Energy conservation (Chen & Pan 2017): springs from each vertex of a tet
     to its mass-weighted centroid ``p0 = sum m_i p_i / sum m_i``::
 
@@ -179,48 +192,52 @@ def energy_constraint(X, t, w, m, ks, rest, k, alpha, lam, dp):
     sum to zero, which is what keeps the correction from moving the tet's
     centre of mass. ``C >= 0`` has a double root, so one projection halves it.
     ``m`` are the masses, ``ks`` the four spring constants, ``rest`` the ``d_i``.
+
+    Written out for the four corners of ``t`` in scalars (about half the time of
+    loops over a scratch array, 15,708 tets): returns ``dlam`` and the twelve
+    components of the corrections ``dp_0 .. dp_3``.
     """
+    t0, t1, t2, t3 = t[0], t[1], t[2], t[3]
     cx, cy, cz, M = _centroid(X, t, m)
-    C = 0.0
-    sx = sy = sz = 0.0
-    emax = 0.0
-    for a in range(4):
-        dx, dy, dz = X[t[a], 0] - cx, X[t[a], 1] - cy, X[t[a], 2] - cz
-        L = math.sqrt(dx * dx + dy * dy + dz * dz)
-        e = L - rest[a]
-        emax = max(emax, abs(e))
-        C += 0.5 * ks[a] * e * e
-        if L > _EPS:
-            f = ks[a] * e / L
-            dp[a, 0], dp[a, 1], dp[a, 2] = f * dx, f * dy, f * dz
-        else:
-            dp[a, 0] = dp[a, 1] = dp[a, 2] = 0.0
-        sx += dp[a, 0]
-        sy += dp[a, 1]
-        sz += dp[a, 2]
-    wsum = 0.0
-    for a in range(4):
-        r = m[t[a]] / M
-        dp[a, 0] -= r * sx
-        dp[a, 1] -= r * sy
-        dp[a, 2] -= r * sz
-        wsum += w[t[a]] * (dp[a, 0] ** 2 + dp[a, 1] ** 2 + dp[a, 2] ** 2)
-    dlam = _step(C, wsum, k, alpha, lam)
+    g0x, g0y, g0z, e0, C0 = _spring(X, t0, cx, cy, cz, ks[0], rest[0])
+    g1x, g1y, g1z, e1, C1 = _spring(X, t1, cx, cy, cz, ks[1], rest[1])
+    g2x, g2y, g2z, e2, C2 = _spring(X, t2, cx, cy, cz, ks[2], rest[2])
+    g3x, g3y, g3z, e3, C3 = _spring(X, t3, cx, cy, cz, ks[3], rest[3])
+    emax = max(abs(e0), abs(e1), abs(e2), abs(e3))
+    C = C0 + C1 + C2 + C3
+    sx, sy, sz = g0x + g1x + g2x + g3x, g0y + g1y + g2y + g3y, g0z + g1z + g2z + g3z
+    r = m[t0] / M
+    g0x, g0y, g0z = g0x - r * sx, g0y - r * sy, g0z - r * sz
+    r = m[t1] / M
+    g1x, g1y, g1z = g1x - r * sx, g1y - r * sy, g1z - r * sz
+    r = m[t2] / M
+    g2x, g2y, g2z = g2x - r * sx, g2y - r * sy, g2z - r * sz
+    r = m[t3] / M
+    g3x, g3y, g3z = g3x - r * sx, g3y - r * sy, g3z - r * sz
+    n0 = g0x * g0x + g0y * g0y + g0z * g0z
+    n1 = g1x * g1x + g1y * g1y + g1z * g1z
+    n2 = g2x * g2x + g2y * g2y + g2z * g2z
+    n3 = g3x * g3x + g3y * g3y + g3z * g3z
+    w0, w1, w2, w3 = w[t0], w[t1], w[t2], w[t3]
+    dlam = _step(C, w0 * n0 + w1 * n1 + w2 * n2 + w3 * n3, k, alpha, lam)
     # C >= 0 can have a minimum above zero (springs that cannot all be met), where
     # its gradient vanishes and the step C / |grad C| grows without bound: a tet
     # near one would throw its vertices centimetres and flip between frames. No
     # vertex moves farther than the tet's largest spring error.
-    big2 = 0.0                              # compared squared: no root per vertex
-    for a in range(4):
-        big2 = max(big2, w[t[a]] ** 2 * (dp[a, 0] ** 2 + dp[a, 1] ** 2 + dp[a, 2] ** 2))
-    big2 *= dlam * dlam
-    if big2 > emax * emax:
+    big2 = max(w0 * w0 * n0, w1 * w1 * n1, w2 * w2 * n2, w3 * w3 * n3) * dlam * dlam
+    if big2 > emax * emax:                  # compared squared: no root per vertex
         dlam *= emax / math.sqrt(big2)
-    for a in range(4):
-        wa = w[t[a]] * dlam
-        dp[a, 0] *= wa
-        dp[a, 1] *= wa
-        dp[a, 2] *= wa
+    s0, s1, s2, s3 = w0 * dlam, w1 * dlam, w2 * dlam, w3 * dlam
+    return (dlam, g0x * s0, g0y * s0, g0z * s0, g1x * s1, g1y * s1, g1z * s1,
+            g2x * s2, g2y * s2, g2z * s2, g3x * s3, g3y * s3, g3z * s3)
+
+
+@nb.njit(cache=True, inline="always")
+def energy_constraint(X, t, w, m, ks, rest, k, alpha, lam, dp):
+    """:func:`energy_step` of tet ``t`` with the corrections written into ``dp``."""
+    (dlam, dp[0, 0], dp[0, 1], dp[0, 2], dp[1, 0], dp[1, 1], dp[1, 2], dp[2, 0], dp[2, 1],
+     dp[2, 2], dp[3, 0], dp[3, 1], dp[3, 2]) = energy_step(X, t, w, m, ks, rest, k, alpha,
+                                                           lam)
     return dlam
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .constraints import (bind_constraint, contact_constraint, energy_constraint,
+from .constraints import (bind_constraint, contact_constraint, energy_step,
                           stretch_constraint, volume_constraint)
 
 STRETCH, VOLUME, ENERGY, BIND = 0, 1, 2, 3
@@ -55,9 +55,22 @@ def _energy_range(X, w, m, T, ks, rest, lam, idx, lo, hi, k, alpha, dp):
     for a in range(lo, hi):
         c = idx[a]
         t = T[c]
-        dlam = energy_constraint(X, t, w, m, ks, rest[c], k, alpha, lam[c], dp)
+        t0, t1, t2, t3 = t[0], t[1], t[2], t[3]
+        (dlam, d0x, d0y, d0z, d1x, d1y, d1z, d2x, d2y, d2z, d3x, d3y,
+         d3z) = energy_step(X, t, w, m, ks, rest[c], k, alpha, lam[c])
         lam[c] += dlam
-        _apply(X, t, dp)
+        X[t0, 0] += d0x
+        X[t0, 1] += d0y
+        X[t0, 2] += d0z
+        X[t1, 0] += d1x
+        X[t1, 1] += d1y
+        X[t1, 2] += d1z
+        X[t2, 0] += d2x
+        X[t2, 1] += d2y
+        X[t2, 2] += d2z
+        X[t3, 0] += d3x
+        X[t3, 1] += d3y
+        X[t3, 2] += d3z
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
