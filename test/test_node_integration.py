@@ -84,6 +84,34 @@ def arm_node(tmp_path: Path, *ros_args: str):
                         "-p", f"surface_vertices:={ARM_VERTICES}", *ros_args)
 
 
+@contextlib.contextmanager
+def ros_client(env: dict, name: str):
+    """This test's own node on the running node's domain: yields (node, executor,
+    set_params); ``set_params(name=value, ...)`` returns the SetParametersResults."""
+    import rclpy
+    import rclpy.executors
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=int(env["ROS_DOMAIN_ID"]))
+    try:
+        node = rclpy.create_node(name, context=ctx)
+        ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+        client = AsyncParameterClient(node, "skin_node")
+        assert client.wait_for_services(10.0)
+
+        def set_params(**kw):
+            fut = client.set_parameters([Parameter(k, value=v) for k, v in kw.items()])
+            ex.spin_until_future_complete(fut, timeout_sec=10.0)
+            return fut.result().results
+
+        yield node, ex, set_params
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
 def play_and_record(env: dict, in_bag: Path, out_bag: Path, *args: str) -> str:
     cmd = _command("skin_bag", "skin_node.bag_tool") + [str(in_bag), str(out_bag), *args]
     res = subprocess.run(cmd, env=env, cwd=REPO, capture_output=True, text=True, timeout=300)
@@ -222,30 +250,15 @@ def test_two_workers_publish_in_order_what_one_pipeline_gives(tmp_path):
 
 
 def test_two_workers_both_take_a_parameter_change(tmp_path):
-    import rclpy
-    import rclpy.executors
-    from rclpy.parameter import Parameter
-    from rclpy.parameter_client import AsyncParameterClient
-
     names = character_skeleton("arm").channel_names
     poses, got = {}, []
     with arm_node(tmp_path, "-p", "workers:=2") as (proc, env, log):
-        ctx = rclpy.Context()
-        rclpy.init(context=ctx, domain_id=int(env["ROS_DOMAIN_ID"]))
-        try:
-            node = rclpy.create_node("skin_node_workers_test", context=ctx)
-            ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
-            ex.add_node(node)
+        with ros_client(env, "skin_node_workers_test") as (node, ex, set_params):
             node.create_subscription(PointCloud2, "skin/points", got.append, 100)
-            client = AsyncParameterClient(node, "skin_node")
-            assert client.wait_for_services(10.0)
-            fut = client.set_parameters([Parameter("pipeline", value=["dqs", "pbd", "smooth"]),
-                                         Parameter("smoothing", value=0.0)])
-            ex.spin_until_future_complete(fut, timeout_sec=10.0)
-            assert [r.successful for r in fut.result().results] == [True, True]
-            fut = client.set_parameters([Parameter("warm_start", value=True)])
-            ex.spin_until_future_complete(fut, timeout_sec=10.0)
-            assert not fut.result().results[0].successful     # history needs one worker
+            ok = [r.successful for r in set_params(pipeline=["dqs", "pbd", "smooth"],
+                                                   smoothing=0.0)]
+            assert ok == [True, True]
+            assert not set_params(warm_start=True)[0].successful   # history needs one worker
             pub = node.create_publisher(JointState, "joint_states", 100)
             deadline = time.monotonic() + 10.0
             while not pub.get_subscription_count() and time.monotonic() < deadline:
@@ -259,8 +272,6 @@ def test_two_workers_both_take_a_parameter_change(tmp_path):
             deadline = time.monotonic() + 10.0
             while time.monotonic() < deadline and (not got or stamp_ns(got[-1]) != max(poses)):
                 ex.spin_once(timeout_sec=0.1)
-        finally:
-            rclpy.try_shutdown(context=ctx)
         assert log.read_text().count("parameters applied") == 1
     assert len(got) >= 2 and stamp_ns(got[-1]) == max(poses)
     ch = skin_node.load_character("arm", surface_vertices=ARM_VERTICES, progress=False)
@@ -327,35 +338,19 @@ def test_real_pr2_bag_unknown_names_are_counted_not_fatal(tmp_path):
 
 
 def test_parameters_mesh_marker_and_sigterm(tmp_path):
-    import rclpy
-    import rclpy.executors
-    from rclpy.parameter import Parameter
-    from rclpy.parameter_client import AsyncParameterClient
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from shape_msgs.msg import Mesh
     from visualization_msgs.msg import Marker
 
     with running_node(tmp_path, "--params-file", str(REPO / "config" / "arm.yaml"),
                       "-p", f"surface_vertices:={ARM_VERTICES}") as (proc, env, log):
-        ctx = rclpy.Context()
-        rclpy.init(context=ctx, domain_id=int(env["ROS_DOMAIN_ID"]))
-        try:
-            node = rclpy.create_node("skin_node_test", context=ctx)
-            ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
-            ex.add_node(node)
+        with ros_client(env, "skin_node_test") as (node, ex, set_params):
             got = {"mesh": [], "marker": [], "points": []}
             latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                  durability=DurabilityPolicy.TRANSIENT_LOCAL)
             node.create_subscription(Mesh, "skin/mesh", got["mesh"].append, latched)
             node.create_subscription(Marker, "skin/marker", got["marker"].append, 5)
             node.create_subscription(PointCloud2, "skin/points", got["points"].append, 5)
-            client = AsyncParameterClient(node, "skin_node")
-            assert client.wait_for_services(10.0)
-
-            def set_params(**kw):
-                fut = client.set_parameters([Parameter(k, value=v) for k, v in kw.items()])
-                ex.spin_until_future_complete(fut, timeout_sec=10.0)
-                return fut.result().results
 
             ok = lambda r: [x.successful for x in r]  # noqa: E731
             assert ok(set_params(stiffness=0.3, iterations=7)) == [True, True]
@@ -385,8 +380,6 @@ def test_parameters_mesh_marker_and_sigterm(tmp_path):
             assert marker.type == Marker.TRIANGLE_LIST and len(marker.points) == 3 * n_triangles
             assert got["points"] and got["points"][-1].width == n_vertices
             assert "parameters applied" in log.read_text()
-        finally:
-            rclpy.try_shutdown(context=ctx)
 
         t0 = time.monotonic()
         proc.send_signal(signal.SIGTERM)
