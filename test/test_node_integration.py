@@ -251,31 +251,33 @@ def test_two_workers_publish_in_order_what_one_pipeline_gives(tmp_path):
 
 def test_two_workers_both_take_a_parameter_change(tmp_path):
     names = character_skeleton("arm").channel_names
+    stages = ["dqs", "pbd", "collision", "smooth", "volume"]      # not the default order
     poses, got = {}, []
     with arm_node(tmp_path, "-p", "workers:=2") as (proc, env, log):
         with ros_client(env, "skin_node_workers_test") as (node, ex, set_params):
-            node.create_subscription(PointCloud2, "skin/points", got.append, 100)
-            ok = [r.successful for r in set_params(pipeline=["dqs", "pbd", "smooth"],
-                                                   smoothing=0.0)]
-            assert ok == [True, True]
+            sub = node.create_subscription(PointCloud2, "skin/points", got.append, 100)
+            assert [r.successful for r in set_params(pipeline=stages, smoothing=0.8)] == \
+                [True, True]
             assert not set_params(warm_start=True)[0].successful   # history needs one worker
             pub = node.create_publisher(JointState, "joint_states", 100)
-            deadline = time.monotonic() + 10.0
-            while not pub.get_subscription_count() and time.monotonic() < deadline:
+            deadline = time.monotonic() + 10.0        # both ways matched: nothing lost
+            while not (pub.get_subscription_count() and sub.get_publisher_count()) \
+                    and time.monotonic() < deadline:
                 ex.spin_once(timeout_sec=0.05)
-            # A burst: both workers are idle at its start, so each takes a pose.
-            for i in range(40):
+            # Poses 1 ms apart into frames of a few ms: the two workers take turns.
+            for i in range(60):
                 q = np.zeros(len(names))
-                q[names.index("elbow_rz")] = 0.06 * i
+                q[names.index("elbow_rz")] = 0.04 * i
                 poses[10**9 + i * 10**6] = q
                 pub.publish(joint_state(10**9 + i * 10**6, names, q))
+                ex.spin_once(timeout_sec=0.001)
             deadline = time.monotonic() + 10.0
             while time.monotonic() < deadline and (not got or stamp_ns(got[-1]) != max(poses)):
                 ex.spin_once(timeout_sec=0.1)
         assert log.read_text().count("parameters applied") == 1
-    assert len(got) >= 2 and stamp_ns(got[-1]) == max(poses)
+    assert len(got) >= 6 and stamp_ns(got[-1]) == max(poses)
     ch = skin_node.load_character("arm", surface_vertices=ARM_VERTICES, progress=False)
-    pipe = skin_node.Pipeline(ch, ["dqs", "pbd", "smooth"], smoothing=0.0)
+    pipe = skin_node.Pipeline(ch, stages, smoothing=0.8)
     for c in got:           # whichever worker deformed it, the new settings did
         ref = pipe.deform(poses[stamp_ns(c)])
         assert np.abs(point_cloud2_to_vertices(c) - ref).max() < 1e-6
