@@ -169,14 +169,18 @@ def draw_run_charts(result: dict, out: Path) -> list:
 
 
 # ------------------------------------------------------------------- markdown
+def _num(v, d: int = 2) -> str:
+    """``v`` with ``d`` decimals for a table, "-" for a missing or non-finite value."""
+    return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{v:.{d}f}"
+
+
 def markdown_table(runs: list, clips: dict | None = None) -> str:
     """Method x scene x clip, pose sweeps left out; with ``clips`` (character ->
     clip names, e.g. :data:`TABLE_CLIPS`) only those clips of those characters."""
     clips = clips or {}
     rows = [r for r in runs if r["motion"] not in ("elbow_sweep", "twist_sweep")
             and r["motion"] in clips.get(r["scene"].split(":")[0], (r["motion"],))]
-    f = lambda v, d=2: "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) \
-        else f"{v:.{d}f}"  # noqa: E731
+    f = _num
     lines = ["| method | scene | clip | ms p50 / p90 | volume at deepest bend | joint region "
              "at deepest bend / worst error | collapse / bulge (mm) | crossings (max) | "
              "distance to reference (mm, mean / max) | jitter (mm, median / max) |",
@@ -199,7 +203,7 @@ def stage_table(runs: list, method: str = "default") -> str:
             and r["motion"] not in ("elbow_sweep", "twist_sweep")]
     order = rows[0]["stages"].split("+") if rows else []
     stages = ["fk"] + [k for k in order if k in STAGE_NAMES]
-    f = lambda v: "-" if v is None or not math.isfinite(v) else f"{v:.2f}"  # noqa: E731
+    f = _num
     lines = [f"| {method}: scene | clip | " + " | ".join(stages) + " | total p50 / p90 |",
              "|---|---|" + "---|" * len(stages) + "---|"]
     for r in rows:
@@ -239,8 +243,7 @@ def ablation_table(runs: list) -> str:
     what = {"dqs": "DQS alone (stage 1)", "default": "the default pipeline",
             **{n: w for n, _, w in ABLATIONS}}
     base = {(r["scene"], r["motion"]): r for r in runs if r["method"] == "default"}
-    f = lambda v, d=1: "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) \
-        else f"{v:.{d}f}"  # noqa: E731
+    f = lambda v, d=1: _num(v, d)  # noqa: E731
     lines = ["| variant | scene | clip | ms p50 (against default) | joint region at deepest "
              "bend / worst error | collapse / bulge (mm) | crossings (max) | jitter (mm, "
              "median / max) |", "|---|---|---|---|---|---|---|---|"]

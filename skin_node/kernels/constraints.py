@@ -234,7 +234,8 @@ def energy_step(X, t, w, m, ks, rest, k, alpha, lam):
 
 @nb.njit(cache=True, inline="always")
 def energy_constraint(X, t, w, m, ks, rest, k, alpha, lam, dp):
-    """:func:`energy_step` of tet ``t`` with the corrections written into ``dp``."""
+    """:func:`energy_step` of tet ``t`` with the corrections written into ``dp``,
+    in the form of the other constraints (the sweeps call :func:`energy_step`)."""
     (dlam, dp[0, 0], dp[0, 1], dp[0, 2], dp[1, 0], dp[1, 1], dp[1, 2], dp[2, 0], dp[2, 1],
      dp[2, 2], dp[3, 0], dp[3, 1], dp[3, 2]) = energy_step(X, t, w, m, ks, rest, k, alpha,
                                                            lam)

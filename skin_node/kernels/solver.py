@@ -51,7 +51,7 @@ def _volume_range(X, w, T, rest, lam, idx, lo, hi, k, alpha, dp):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _energy_range(X, w, m, T, ks, rest, lam, idx, lo, hi, k, alpha, dp):
+def _energy_range(X, w, m, T, ks, rest, lam, idx, lo, hi, k, alpha):
     for a in range(lo, hi):
         c = idx[a]
         t = T[c]
@@ -105,7 +105,7 @@ def _range(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, lo, hi, k,
     elif kind == VOLUME:
         _volume_range(X, w, T, rest, lam, idx, lo, hi, k, alpha, dp)
     elif kind == ENERGY:
-        _energy_range(X, w, m, T, ks, erest, lam, idx, lo, hi, k, alpha, dp)
+        _energy_range(X, w, m, T, ks, erest, lam, idx, lo, hi, k, alpha)
     else:
         _bind_range(X, w, seg, A, B, rest, lam, idx, lo, hi, k, alpha, dp)
 
@@ -138,8 +138,7 @@ def _volume_seq(X, w, T, rest, lam, idx, k, alpha):
 
 @nb.njit(cache=True, nogil=True, fastmath=FAST)
 def _energy_seq(X, w, m, T, ks, erest, lam, idx, k, alpha):
-    dp = np.zeros((4, 3))
-    _energy_range(X, w, m, T, ks, erest, lam, idx, 0, idx.shape[0], k, alpha, dp)
+    _energy_range(X, w, m, T, ks, erest, lam, idx, 0, idx.shape[0], k, alpha)
 
 
 @nb.njit(cache=True, nogil=True, fastmath=FAST)
