@@ -9,7 +9,8 @@ from std_msgs.msg import Header
 from visualization_msgs.msg import Marker
 
 from msg_adapters import (ChannelMapper, JointStateError, Reason, channels_to_joint_state,
-                          diagnostic_array, diagnostic_values, joint_state_to_arrays,
+                          diagnostic_array, diagnostic_values, header_stamp_ns,
+                          joint_state_to_arrays,
                           load_name_map, mesh_to_msg, msg_to_mesh, point_cloud2_to_vertices,
                           triangle_list_marker, triangle_list_marker_cdr,
                           vertices_to_point_cloud2)
@@ -229,3 +230,16 @@ def test_diagnostic_array_round_trip():
     assert msg.status[0].level == msg.status[0].WARN
     with pytest.raises(KeyError):
         diagnostic_values(msg, "other")
+
+
+def test_header_stamp_read_from_cdr_without_deserializing():
+    msg = js(CHANNELS, np.arange(9.0))
+    msg.header = header(sec=1_700_000_123, nanosec=999_999_999)
+    assert header_stamp_ns(serialize_message(msg)) == 1_700_000_123_999_999_999
+    cloud = vertices_to_point_cloud2(np.zeros((3000, 3)), header(sec=-2, nanosec=5))
+    assert header_stamp_ns(serialize_message(cloud)) == -2 * 10**9 + 5
+    big = bytes([0, 0, 0, 0]) + (7).to_bytes(4, "big") + (9).to_bytes(4, "big")
+    assert header_stamp_ns(big) == 7 * 10**9 + 9                 # big-endian CDR
+    for bad in (b"", b"\x00\x01\x00\x00\x01", b"\x00\x03" + bytes(10)):
+        with pytest.raises(ValueError, match="plain CDR"):
+            header_stamp_ns(bad)

@@ -17,7 +17,6 @@ import json
 import os
 import shutil
 import signal
-import struct
 import subprocess
 import sys
 import tempfile
@@ -56,7 +55,7 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     from sensor_msgs.msg import PointCloud2
     from shape_msgs.msg import Mesh
 
-    from msg_adapters import channels_to_joint_state, diagnostic_values
+    from msg_adapters import channels_to_joint_state, diagnostic_values, header_stamp_ns
     from skin_node import load_character
     from skin_node.builtin.characters import BUILTIN_CHARACTERS
     from skin_node.node import QOS_JOINT_STATES, QOS_LATCHED, QOS_STREAM
@@ -89,8 +88,7 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     def on_points(raw: bytes):
         # Raw CDR: only the stamp is read, not the whole 24k-point cloud.
         now = clock.now().nanoseconds
-        sec, nanosec = struct.unpack_from("<iI" if raw[1] == 1 else ">iI", raw, 4)
-        lat.append((now - (sec * 1_000_000_000 + nanosec)) / 1e6)
+        lat.append((now - header_stamp_ns(raw)) / 1e6)
 
     def on_diag(msg):
         try:
