@@ -7,6 +7,13 @@ new bag. Messages pass through as serialized CDR in both directions, so the
 tool neither parses nor re-encodes them::
 
     skin_bag in_bag out_bag --storage mcap --record skin/points skin/diagnostics
+
+At the recorded rate the node, like on live mocap, skips a pose that a newer
+one overtook while it was busy. ``--lockstep SECONDS`` instead sends each joint
+state once the node has answered the one before on ``skin/points`` (a cloud
+with that stamp or a later one), or after SECONDS without an answer (a message
+the node rejects is never answered): every pose is deformed however slow the
+machine, which is what reprocessing a bag for measurement wants.
 """
 from __future__ import annotations
 
@@ -25,9 +32,11 @@ from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import JointState
 
+from msg_adapters import header_stamp_ns
 from skin_node.node import QOS_JOINT_STATES, init_ros, setting_up
 
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
+POINTS_TOPIC = "skin/points"
 #: Message type of each topic the node publishes; other topics need "topic=pkg/msg/Type".
 KNOWN_TOPICS = {
     "skin/points": "sensor_msgs/msg/PointCloud2",
@@ -80,15 +89,26 @@ class BagRecorder(Node):
         typestore = get_typestore(Stores.ROS2_JAZZY)
         self.counts = {t: 0 for t in topics}
         self._writer, self._queue = writer, queue.SimpleQueue()
+        #: Newest stamp (ns) seen on skin/points: what the node has answered.
+        self.answered_ns = None
+        self.answered = threading.Condition()
         self.pub = self.create_publisher(JointState, "joint_states", QOS_JOINT_STATES)
         self.subs = []
         for topic, type_name in topics.items():
             conn = writer.add_connection("/" + topic.lstrip("/"), type_name, typestore=typestore)
             self.subs.append(self.create_subscription(
                 _message_class(type_name), topic,
-                lambda raw, t=topic, c=conn: self._queue.put(
-                    (t, c, self.get_clock().now().nanoseconds, raw)),
+                lambda raw, t=topic, c=conn: self._received(t, c, raw),
                 QOS_RECORD, raw=True))
+
+    def _received(self, topic: str, conn, raw: bytes) -> None:
+        self._queue.put((topic, conn, self.get_clock().now().nanoseconds, raw))
+        if topic.lstrip("/") == POINTS_TOPIC:
+            with self.answered:
+                stamp = header_stamp_ns(raw)
+                if self.answered_ns is None or stamp > self.answered_ns:
+                    self.answered_ns = stamp
+                self.answered.notify_all()
 
     def write_pending(self) -> None:
         """Write everything received so far (main thread only)."""
@@ -101,6 +121,26 @@ class BagRecorder(Node):
         """True once the node listens to us and we listen to each of its topics."""
         return (self.pub.get_subscription_count() > 0
                 and all(s.get_publisher_count() > 0 for s in self.subs))
+
+
+def _send_and_wait(node: BagRecorder, raw: bytes, seconds: float) -> bool:
+    """Publish one joint state and wait up to ``seconds`` for a cloud with its
+    stamp or a later one, writing what arrives meanwhile. True when it came."""
+    node.pub.publish(raw)
+    try:
+        stamp_ns = header_stamp_ns(raw)
+    except ValueError:                  # no stamp: nothing to wait for
+        return False
+    end = time.monotonic() + seconds
+    while True:
+        node.write_pending()
+        with node.answered:
+            if node.answered_ns is not None and node.answered_ns >= stamp_ns:
+                return True
+            left = end - time.monotonic()
+            if left <= 0:
+                return False
+            node.answered.wait(min(left, 0.02))
 
 
 def _sleep_writing(node: BagRecorder, seconds: float) -> None:
@@ -124,6 +164,9 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     ap.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
     ap.add_argument("--rate", type=float, default=1.0, help="playback speed factor")
     ap.add_argument("--limit", type=int, default=0, help="play only the first N messages")
+    ap.add_argument("--lockstep", type=float, default=0.0, metavar="SECONDS",
+                    help="send each message once skin/points answered the one before, "
+                         "or after SECONDS without an answer (0: the recorded rate)")
     ap.add_argument("--wait", type=float, default=30.0,
                     help="seconds to wait for skin_node to appear")
     ap.add_argument("--linger", type=float, default=2.5,
@@ -132,6 +175,11 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     args = ap.parse_args(argv)
     if args.rate <= 0:
         ap.error("--rate must be > 0")
+    if args.lockstep < 0:
+        ap.error("--lockstep must be >= 0")
+    if args.lockstep and POINTS_TOPIC not in [t.partition("=")[0].lstrip("/")
+                                              for t in args.record]:
+        ap.error(f"--lockstep waits for {POINTS_TOPIC}: record it")
     return args
 
 
@@ -172,10 +220,16 @@ def main(argv: list[str] | None = None) -> int:
             # Matching is not symmetric in time: give the node's reader a moment to
             # match our writer too, or the first messages can be lost.
             time.sleep(0.5)
-            t0, start = messages[0][0], time.monotonic()
-            for t, raw in messages:
-                _sleep_writing(node, start + (t - t0) * 1e-9 / args.rate - time.monotonic())
-                node.pub.publish(raw)
+            t0, start, unanswered = messages[0][0], time.monotonic(), 0
+            for i, (t, raw) in enumerate(messages):
+                if not args.lockstep:
+                    _sleep_writing(node, start + (t - t0) * 1e-9 / args.rate - time.monotonic())
+                    node.pub.publish(raw)
+                    continue
+                unanswered += not _send_and_wait(node, raw, args.lockstep)
+                if (i + 1) % 500 == 0:
+                    print(f"skin_bag: {i + 1}/{len(messages)} sent, {unanswered} unanswered",
+                          flush=True)
             played_s = time.monotonic() - start
             _sleep_writing(node, args.linger)
             executor.shutdown()
@@ -186,8 +240,11 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     finally:
         rclpy.try_shutdown()
-    print(f"skin_bag: played {len(messages)} joint states in {played_s:.2f} s; recorded "
-          + ", ".join(f"{t} {n}" for t, n in counts.items()) + f" into {args.out_bag}")
+    lockstep = (f" in lockstep ({unanswered} unanswered within {args.lockstep:g} s)"
+                if args.lockstep else "")
+    print(f"skin_bag: played {len(messages)} joint states in {played_s:.2f} s{lockstep}; "
+          "recorded " + ", ".join(f"{t} {n}" for t, n in counts.items())
+          + f" into {args.out_bag}")
     return 0
 
 

@@ -175,7 +175,8 @@ def test_joint_region_volume_within_3_percent(acceptance, weights, clip):
 def test_acceptance_through_the_node(tmp_path, weights, characters, motions):
     """The same measures on what the node publishes: ``skin_node`` started as its
     installed executable with CesiumMan, fed the walk's and the punch's frames
-    above from a bag (10 Hz, so none is skipped), its point clouds recorded."""
+    above from a bag in lockstep (each once the one before is answered, so none
+    is skipped however loaded the machine), its point clouds recorded."""
     pytest.importorskip("rclpy")
     import test_node_integration as node
     from msg_adapters import point_cloud2_to_vertices
@@ -191,8 +192,9 @@ def test_acceptance_through_the_node(tmp_path, weights, characters, motions):
     node.write_bag(tmp_path / "in", "mcap", stream)
     with node.running_node(tmp_path, "-p", f"character:={CESIUMMAN}",
                            "-p", f"weights:={weights}") as (proc, env, log):
-        node.play_and_record(env, tmp_path / "in", tmp_path / "out")
+        out = node.play_and_record(env, tmp_path / "in", tmp_path / "out", "--lockstep", "10")
         assert proc.poll() is None, "node died"
+    assert "in lockstep (0 unanswered within 10 s)" in out
     clouds, diag = node.read_outputs(tmp_path / "out")
     assert [node.stamp_ns(c) for c in clouds] == [t for t, _ in stream]
     assert int(diag["frames_skipped_stale"]) == 0 and int(diag["rejected_total"]) == 0

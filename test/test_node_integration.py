@@ -190,12 +190,16 @@ def test_replay_answers_each_valid_message_once_and_counts_bad_ones(tmp_path, st
     stream, valid, bad = arm_stream(n_valid=80, hz=20.0)
     assert set(bad) == set(Reason)  # every rejection reason is exercised
     write_bag(tmp_path / "in", storage, stream)
-    # A light pipeline keeps each frame well under the 50 ms between messages on
-    # a loaded 2-core machine, so no frame may be skipped as stale.
+    # In lockstep no valid frame may be skipped as stale; the bad ones are never
+    # answered (each waits out the 0.5 s) but for the backwards stamps, which are
+    # older than an answer already given.
     with arm_node(tmp_path, "-p", "pipeline:=[dqs, smooth]") as (proc, env, log):
-        play_and_record(env, tmp_path / "in", tmp_path / "out", "--storage", storage)
+        out = play_and_record(env, tmp_path / "in", tmp_path / "out", "--storage", storage,
+                              "--lockstep", "0.5")
         assert proc.poll() is None, "node died"
     clouds, diag = read_outputs(tmp_path / "out")
+    unanswered = sum(len(v) for v in bad.values()) - len(bad[Reason.STAMP_BACKWARDS])
+    assert f"in lockstep ({unanswered} unanswered within 0.5 s)" in out
 
     assert [stamp_ns(c) for c in clouds] == valid
     for c in clouds:
@@ -473,3 +477,19 @@ def test_player_loads_builtin_clips_and_retargeted_bvh():
     name, names, frames, fps = load_motion("humanoid", bvh=str(bvh))
     assert frames.shape == (344, 54) and fps == pytest.approx(120.0)
     assert np.isfinite(frames).all()
+
+
+def test_skin_bag_refuses_bad_arguments_before_touching_ros(tmp_path, capsys):
+    from skin_node import bag_tool
+    stream, _, _ = arm_stream(n_valid=3, hz=10.0, with_bad=False)
+    write_bag(tmp_path / "in", "mcap", stream)
+    for args, problem in (
+            (["--lockstep", "2", "--record", "skin/diagnostics"], "waits for skin/points"),
+            (["--lockstep", "-1"], "--lockstep must be >= 0"),
+            (["--rate", "0"], "--rate must be > 0")):
+        with pytest.raises(SystemExit) as e:
+            bag_tool.main([str(tmp_path / "in"), str(tmp_path / "out"), *args])
+        assert e.value.code == 2 and problem in capsys.readouterr().err
+    assert bag_tool.main([str(tmp_path / "none"), str(tmp_path / "out")]) == 1
+    assert "skin_bag: error:" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
