@@ -21,7 +21,7 @@ Topics (relative, so they can be remapped)
     Only built while someone subscribes.
 ``skin/diagnostics`` (pub, diagnostic_msgs/DiagnosticArray, 1 Hz)
     ms per stage, frames processed / skipped as stale / rejected by reason,
-    unknown joint names.
+    frames published by each worker, unknown joint names.
 
 Newest frame first
 ------------------
@@ -183,6 +183,7 @@ class SkinNode(Node):
         # Counters (written by the callback or the workers, read by the 1 Hz timer).
         self._rejected: Counter = Counter()
         self._received = self._processed = self._stale = self._failed = 0
+        self._worker_frames = [0] * workers
         self._last_stamp_ns = -1
         self._period = {"frames": 0, "deform_ms": 0.0, "latency_ms": 0.0}
         self._timings: dict = dict(self._pipes[0].timings)
@@ -368,6 +369,7 @@ class SkinNode(Node):
             try:
                 if V is not None:
                     self._publish(V, stamp, frame_id, pipe, deform_ms, t_received)
+                    self._worker_frames[w] += 1
             except Exception as e:  # noqa: BLE001
                 if not self._stopping:
                     self._failed += 1
@@ -403,6 +405,7 @@ class SkinNode(Node):
             "frames_processed": self._processed,
             "frames_skipped_stale": self._stale,
             "frames_failed": self._failed,
+            "frames_per_worker": ",".join(map(str, self._worker_frames)),
             "rejected_total": sum(self._rejected.values()),
             **rejected,
             "unknown_names": ",".join(sorted(unknown)),

@@ -256,10 +256,12 @@ def test_two_workers_publish_in_order_what_one_pipeline_gives(tmp_path):
 def test_two_workers_both_take_a_parameter_change(tmp_path):
     names = character_skeleton("arm").channel_names
     stages = ["dqs", "pbd", "collision", "smooth", "volume"]      # not the default order
-    poses, got = {}, []
+    poses, got, diags = {}, [], []
     with arm_node(tmp_path, "-p", "workers:=2") as (proc, env, log):
         with ros_client(env, "skin_node_workers_test") as (node, ex, set_params):
             sub = node.create_subscription(PointCloud2, "skin/points", got.append, 100)
+            node.create_subscription(DiagnosticArray, "skin/diagnostics",
+                                     lambda m: diags.append(diagnostic_values(m)), 10)
             assert [r.successful for r in set_params(pipeline=stages, smoothing=0.8)] == \
                 [True, True]
             assert not set_params(warm_start=True)[0].successful   # history needs one worker
@@ -268,18 +270,29 @@ def test_two_workers_both_take_a_parameter_change(tmp_path):
             while not (pub.get_subscription_count() and sub.get_publisher_count()) \
                     and time.monotonic() < deadline:
                 ex.spin_once(timeout_sec=0.05)
-            # Poses 1 ms apart into frames of a few ms: the two workers take turns.
-            for i in range(60):
-                q = np.zeros(len(names))
-                q[names.index("elbow_rz")] = 0.04 * i
-                poses[10**9 + i * 10**6] = q
-                pub.publish(joint_state(10**9 + i * 10**6, names, q))
-                ex.spin_once(timeout_sec=0.001)
-            deadline = time.monotonic() + 10.0
-            while time.monotonic() < deadline and (not got or stamp_ns(got[-1]) != max(poses)):
+            # Bursts of three poses 2 ms apart into frames of several ms: while one
+            # worker deforms the first, the other takes the second.
+            for burst in range(20):
+                for k in range(3):
+                    i = 3 * burst + k
+                    q = np.zeros(len(names))
+                    q[names.index("elbow_rz")] = 0.04 * i
+                    poses[10**9 + i * 10**6] = q
+                    pub.publish(joint_state(10**9 + i * 10**6, names, q))
+                    time.sleep(0.002)
+                deadline = time.monotonic() + 10.0
+                while time.monotonic() < deadline and (not got or stamp_ns(got[-1]) != max(poses)):
+                    ex.spin_once(timeout_sec=0.01)
+            deadline = time.monotonic() + 5.0     # diagnostics counting every frame sent
+            while time.monotonic() < deadline and not (
+                    diags and int(diags[-1]["frames_received"]) == len(poses)):
                 ex.spin_once(timeout_sec=0.1)
         assert log.read_text().count("parameters applied") == 1
-    assert len(got) >= 6 and stamp_ns(got[-1]) == max(poses)
+    out = [stamp_ns(c) for c in got]
+    assert out == sorted(set(out)) and out[-1] == max(poses)
+    per_worker = [int(n) for n in diags[-1]["frames_per_worker"].split(",")]
+    assert len(per_worker) == 2 and min(per_worker) >= 1, per_worker
+    assert sum(per_worker) == int(diags[-1]["frames_processed"]) == len(got)
     ch = skin_node.load_character("arm", surface_vertices=ARM_VERTICES, progress=False)
     pipe = skin_node.Pipeline(ch, stages, smoothing=0.8)
     for c in got:           # whichever worker deformed it, the new settings did
