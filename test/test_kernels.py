@@ -490,21 +490,22 @@ def test_zone_volume_gradient_matches_finite_differences(sphere_tets):
             assert g[i, d] == pytest.approx((total(Xp) - total(Xm)) / (2 * h), abs=1e-12)
 
 
-def _skin_patch():
+def _skin_patch(cells=10):
     """A flat patch of side-0 skin at z = 0 (normals +z) over a bone below it,
-    and two side-1 vertices above it, away from its triangles' edges."""
-    g = np.linspace(-0.1, 0.1, 11)
+    ``cells`` squares a side, and two side-1 vertices above it, away from its
+    triangles' edges."""
+    g = np.linspace(-0.1, 0.1, cells + 1)
     P = np.array([[x, y, 0.0] for y in g for x in g])
     F = []
-    for r in range(10):
-        for c in range(10):
-            a = r * 11 + c
-            F += [[a, a + 1, a + 12], [a, a + 12, a + 11]]
+    for r in range(cells):
+        for c in range(cells):
+            a = r * (cells + 1) + c
+            F += [[a, a + 1, a + cells + 2], [a, a + cells + 2, a + cells + 1]]
     X0 = np.vstack([P, [[0.013, 0.004, 0.005], [0.054, 0.045, -0.003]]])
     return X0, np.array(F, dtype=np.int64)
 
 
-def _crossed(X, X0, F, verts=None, reach=0.05):
+def _crossed(X, X0, F, verts=None, reach=0.05, hint=None, rest_sep=0.001):
     from skin_node.kernels.collision import (crossed_vertices, fit_tree, tree_fit,
                                              triangle_trees)
     verts = np.array([len(X0) - 2, len(X0) - 1]) if verts is None else verts
@@ -516,7 +517,8 @@ def _crossed(X, X0, F, verts=None, reach=0.05):
     return crossed_vertices(X, X0, F, verts, np.ones(len(verts), dtype=np.int64), tris,
                             tree, fit, np.eye(4)[None], np.zeros(len(F), dtype=np.int64),
                             np.tile([0.0, 0.0, 1.0], (len(F), 1)), bone,
-                            bone + [1.0, 0.0, 0.0], np.array([1.0, 1.0]), 0.001, 0.01, reach)
+                            bone + [1.0, 0.0, 0.0], np.array([1.0, 1.0]), rest_sep, 0.01, reach,
+                            -np.ones(len(verts), dtype=np.int64) if hint is None else hint)
 
 
 def test_the_crossing_test_finds_skin_behind_a_stretched_triangle():
@@ -536,10 +538,10 @@ def test_the_crossing_test_finds_skin_behind_a_stretched_triangle():
     assert list(_crossed(X0, X0, F, reach=0.02)) == [-1, -1]
 
 
-def _two_layers(seed=3):
+def _two_layers(seed=3, cells=10):
     """A crumpled patch of side-0 skin and a noisy layer of side-1 vertices
     over and through it: rest, now, the side-1 vertices."""
-    X0, F = _skin_patch()
+    X0, F = _skin_patch(cells)
     rng = np.random.default_rng(seed)
     X = X0 + rng.normal(0.0, 0.004, X0.shape)
     X[:-2, 2] += 0.01 * np.sin(40 * X0[:-2, 0])
@@ -550,19 +552,40 @@ def _two_layers(seed=3):
     return Xall0, Xall, F, np.arange(len(X0), len(Xall0))
 
 
-def test_the_crossing_test_is_the_brute_force_nearest_triangle_rule():
+def test_the_crossing_test_answers_the_same_from_any_earlier_nearest_triangle():
+    """Each call leaves every vertex's nearest triangle as the next call's first
+    guess: carried through a sequence of poses (each moved from the last, then
+    one far from all), the answers are those of a search without guesses."""
+    Xall0, Xall, F, verts = _two_layers()
+    rng = np.random.default_rng(7)
+    hint = -np.ones(len(verts), dtype=np.int64)
+    X, crossings, guessed = Xall.copy(), 0, 0
+    for step in range(12):
+        X = X + rng.normal(0.0, 0.002 if step < 11 else 0.02, X.shape)
+        guessed += int((hint >= 0).sum())
+        got = _crossed(X, Xall0, F, verts=verts, reach=0.03, hint=hint)
+        want = _crossed(X, Xall0, F, verts=verts, reach=0.03)
+        assert list(got) == list(want), step
+        crossings += int((got != -1).sum())
+    assert crossings >= 20 and guessed >= 10 * len(verts) // 2
+
+
+@pytest.mark.parametrize("rest_sep, cells", [(0.001, 10), (0.015, 30)])
+def test_the_crossing_test_is_the_brute_force_nearest_triangle_rule(rest_sep, cells):
     """On a crumpled patch, the tree search gives, vertex for vertex, what
     testing every triangle gives (the nearest within reach, the lowest face
-    among equally near ones)."""
+    among equally near ones, none whose centre sat within ``rest_sep`` at rest;
+    with 7 mm triangles and 15 mm the search also skips whole subtrees of such
+    triangles, and must skip no other)."""
     from skin_node.kernels.collision import _closest_on_triangle
-    Xall0, Xall, F, verts = _two_layers()
+    Xall0, Xall, F, verts = _two_layers(cells=cells)
     reach = 0.03
-    got = _crossed(Xall, Xall0, F, verts=verts, reach=reach)
+    got = _crossed(Xall, Xall0, F, verts=verts, reach=reach, rest_sep=rest_sep)
     want = []
     for i in verts:
         best, bd, bin_ = -1, reach * reach, False
         for f in range(len(F)):
-            if np.sum((Xall0[F[f]].mean(0) - Xall0[i]) ** 2) < 0.001 ** 2:
+            if np.sum((Xall0[F[f]].mean(0) - Xall0[i]) ** 2) < rest_sep ** 2:
                 continue
             *q, inside = _closest_on_triangle(*Xall[i], *Xall[F[f, 0]], *Xall[F[f, 1]],
                                               *Xall[F[f, 2]])
@@ -602,8 +625,10 @@ def test_boxes_grown_where_the_skin_moved_keep_the_search_exact():
             np.tile([0.0, 0.0, 1.0], (len(F), 1)), bone, bone + [1.0, 0.0, 0.0],
             np.array([1.0, 1.0]), 0.001, 0.01, 0.03)
     side = np.ones(len(verts), dtype=np.int64)
-    a = crossed_vertices(X, Xall0, F, verts, side, tris, tree, grown, *args)
-    b = crossed_vertices(X, Xall0, F, verts, side, tris, tree, fresh, *args)
+    a = crossed_vertices(X, Xall0, F, verts, side, tris, tree, grown, *args,
+                         -np.ones(len(verts), dtype=np.int64))
+    b = crossed_vertices(X, Xall0, F, verts, side, tris, tree, fresh, *args,
+                         -np.ones(len(verts), dtype=np.int64))
     assert list(a) == list(b) and (a >= 0).sum() >= 5
     lo, hi, tlo, thi = grown[:4]
     slot, leaf = tree.slot, tree.leaf

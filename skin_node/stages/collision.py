@@ -78,6 +78,7 @@ class JointRegions:
         self._V0, self._F = character.V, F
         self._trees, self._fits = [None] * J, [None] * J
         self._fitted = [(None, None)] * J          # (posed, X) each fit is for
+        self._hints = [None] * J                    # last nearest triangle, per vertex
         self._rest_seg = self._all_rest_segments()
 
     def rest_segments(self, j: int):
@@ -149,9 +150,15 @@ class JointRegions:
         was, wasX = self._fitted[j]
         fit_tree(X, tree, fit, fresh or was is not posed or wasX is not X)
         self._fitted[j] = (None, None) if fresh else (posed, X)
-        return crossed_vertices(X, X0, F, v, side, t, tree, fit, np.ascontiguousarray(M),
-                                self.tri_bone, self.tri_normal, A, B, self.R[j], 3.0 * self.edge,
-                                0.5 * rad, self.cell(j), numba.get_num_threads())
+        if self._hints[j] is None:
+            self._hints[j] = -np.ones(len(self.verts[j]), dtype=np.int64)
+        hint = self._hints[j] if sub is None else self._hints[j][sub]
+        out = crossed_vertices(X, X0, F, v, side, t, tree, fit, np.ascontiguousarray(M),
+                               self.tri_bone, self.tri_normal, A, B, self.R[j], 3.0 * self.edge,
+                               0.5 * rad, self.cell(j), hint, numba.get_num_threads())
+        if sub is not None:
+            self._hints[j][sub] = hint
+        return out
 
     def cell(self, j: int) -> float:
         """How near the other side's skin :meth:`crossed` looks, for joint ``j``
