@@ -665,3 +665,36 @@ def test_push_out_returns_a_vertex_to_its_rest_depth():
     assert X[-2, 2] == pytest.approx(1e-4)            # in front of the plane
     assert X[-1, 2] == pytest.approx(-0.003 + 1e-4)   # back where it sat at rest
     assert list(_crossed(X, X0, F)) == [-1, -1]
+
+
+@pytest.mark.parametrize("relative", [False, True])
+def test_laplacian_smooth_is_jacobi_on_the_chosen_vertices_only(relative):
+    """On an icosphere: ``p <- (1-k) p + k mean(one ring)`` for the chosen
+    vertices, all from the last pass's values, of positions or of ``X - base``;
+    every other vertex keeps its place."""
+    from skin_node.kernels.solver import laplacian_smooth, ring_layout
+    m = trimesh.creation.icosphere(subdivisions=3)
+    rng = np.random.default_rng(4)
+    base = np.array(m.vertices)
+    X = base + rng.normal(0.0, 0.05, base.shape)
+    nbrs = m.vertex_neighbors
+    ptr = np.cumsum([0] + [len(n) for n in nbrs]).astype(np.int64)
+    nbr = np.concatenate(nbrs).astype(np.int64)
+    verts = np.flatnonzero(base[:, 2] > 0.3)
+    want = X - base if relative else X.copy()
+    for _ in range(3):
+        new = want.copy()
+        for i in verts:
+            new[i] = 0.6 * want[i] + 0.4 * want[nbrs[i]].mean(axis=0)
+        want = new
+    if relative:
+        want += base
+    ring, loc, lptr, lnbr = ring_layout(verts, ptr, nbr)
+    assert np.array_equal(ring[loc], verts) and set(ring) == set(verts) | set(nbr[
+        np.concatenate([np.arange(ptr[i], ptr[i + 1]) for i in verts])])
+    got = X.copy()
+    laplacian_smooth(got, base, relative, ring, loc, lptr, lnbr, 0.4, 3,
+                     np.empty((len(ring), 3)), np.empty((len(verts), 3)))
+    assert np.abs(got - want).max() < 1e-12
+    others = np.setdiff1d(np.arange(len(X)), verts)
+    assert np.array_equal(got[others], X[others]) and np.abs(got - X)[verts].max() > 0.01

@@ -262,36 +262,53 @@ def embed_update(base, X, Xbase, Etet, Ebary, verts, out):
             out[i, d] = s
 
 
-@nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
-def laplacian_smooth(X, verts, ptr, nbr, k, iterations, buf):
-    """Jacobi Laplacian smoothing of ``verts`` only, in place:
-    ``p <- (1-k) p + k mean(one ring)``, ``iterations`` times.
+def ring_layout(verts: np.ndarray, ptr: np.ndarray, nbr: np.ndarray):
+    """The compact layout :func:`laplacian_smooth` works in: ``verts`` and their
+    one ring gathered into ``ring`` (sorted), ``loc`` the position of each of
+    ``verts`` in it, and the verts' adjacency as CSR ``lptr``/``lnbr`` into
+    ``ring``. Gathered, a joint region's few thousand vertices stay in cache
+    through the passes, where the whole surface and its adjacency would not."""
+    verts = np.asarray(verts, dtype=np.int64)
+    counts = ptr[verts + 1] - ptr[verts]
+    lptr = np.zeros(len(verts) + 1, dtype=np.int64)
+    np.cumsum(counts, out=lptr[1:])
+    idx = np.repeat(ptr[verts], counts) + (np.arange(lptr[-1]) - np.repeat(lptr[:-1], counts))
+    ring = np.union1d(verts, nbr[idx]).astype(np.int64)
+    return (ring, np.searchsorted(ring, verts).astype(np.int64), lptr,
+            np.searchsorted(ring, nbr[idx]).astype(np.int32))
 
-    ``ptr``/``nbr`` is the one-ring adjacency in CSR form; ``buf``
-    (len(verts), 3) scratch. Vertices outside ``verts`` are read but never moved."""
+
+@nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
+def laplacian_smooth(X, base, relative, ring, loc, lptr, lnbr, k, iterations, L, buf):
+    """Jacobi Laplacian smoothing of the vertices of a :func:`ring_layout`, in
+    place: ``p <- (1-k) p + k mean(one ring)``, ``iterations`` times, of the
+    positions ``X`` or, with ``relative``, of the displacements ``X - base``
+    (``X = base + smoothed``). ``L`` (len(ring), 3) and ``buf`` (len(loc), 3)
+    are scratch. The ring is read, only the vertices themselves move."""
+    for a in nb.prange(ring.shape[0]):
+        i = ring[a]
+        for c in range(3):
+            L[a, c] = X[i, c] - base[i, c] if relative else X[i, c]
     for _ in range(iterations):
-        for a in nb.prange(verts.shape[0]):
-            i = verts[a]
-            lo, hi = ptr[i], ptr[i + 1]
+        for a in nb.prange(loc.shape[0]):
+            lo, hi = lptr[a], lptr[a + 1]
             sx = sy = sz = 0.0
             for b in range(lo, hi):
-                q = nbr[b]
-                sx += X[q, 0]
-                sy += X[q, 1]
-                sz += X[q, 2]
+                q = lnbr[b]
+                sx += L[q, 0]
+                sy += L[q, 1]
+                sz += L[q, 2]
             c = k / max(hi - lo, 1)
-            buf[a, 0] = (1.0 - k) * X[i, 0] + c * sx
-            buf[a, 1] = (1.0 - k) * X[i, 1] + c * sy
-            buf[a, 2] = (1.0 - k) * X[i, 2] + c * sz
-        for a in nb.prange(verts.shape[0]):
-            i = verts[a]
-            X[i, 0], X[i, 1], X[i, 2] = buf[a, 0], buf[a, 1], buf[a, 2]
-
-
-@nb.njit(cache=True, nogil=True, fastmath=FAST)
-def add_rows(out, base, d, verts):
-    """``out[i] = base[i] + d[i]`` for ``i`` in ``verts``."""
-    for a in range(verts.shape[0]):
-        i = verts[a]
+            i = loc[a]
+            buf[a, 0] = (1.0 - k) * L[i, 0] + c * sx
+            buf[a, 1] = (1.0 - k) * L[i, 1] + c * sy
+            buf[a, 2] = (1.0 - k) * L[i, 2] + c * sz
+        for a in nb.prange(loc.shape[0]):
+            i = loc[a]
+            L[i, 0], L[i, 1], L[i, 2] = buf[a, 0], buf[a, 1], buf[a, 2]
+    for a in nb.prange(loc.shape[0]):
+        i, v = loc[a], ring[loc[a]]
         for c in range(3):
-            out[i, c] = base[i, c] + d[i, c]
+            X[v, c] = base[v, c] + L[i, c] if relative else L[i, c]
+
+

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels.solver import add_rows, laplacian_smooth
+from ..kernels.solver import laplacian_smooth, ring_layout
 from .base import Frame, KeyedCache, Stage
 
 
@@ -28,30 +28,32 @@ class Smooth(Stage):
         # surface vertices whose tet touches each joint's zone
         self.szone = r.zone[r.Etet].any(axis=1)
         self._sets = KeyedCache()
+        self._ring = np.empty_like(character.V)      # scratch: the gathered ring
         self._buf = np.empty_like(character.V)
-        self._d = np.zeros_like(character.V)
 
     def verts(self, bent: np.ndarray, mode: str) -> np.ndarray:
+        """The vertices smoothed for the bent joints ``bent`` in ``mode``."""
+        return self.layout(bent, mode)[0]
+
+    def layout(self, bent: np.ndarray, mode: str):
+        """:meth:`verts` and their :func:`ring_layout` (cached per bent set)."""
         def make():
             js = np.flatnonzero(bent)
             if mode == "position":
-                return np.flatnonzero(np.isin(self.region, js)).astype(np.int64)
-            mask = self.szone[:, js].any(axis=1) | np.isin(self.region, js)
-            return np.flatnonzero(mask).astype(np.int64)
+                vs = np.flatnonzero(np.isin(self.region, js)).astype(np.int64)
+            else:
+                mask = self.szone[:, js].any(axis=1) | np.isin(self.region, js)
+                vs = np.flatnonzero(mask).astype(np.int64)
+            return (vs, *ring_layout(vs, self.ptr, self.adj))
         return self._sets.get((bent.tobytes(), mode), make)
 
     def __call__(self, fr: Frame) -> None:
         k = float(self.params["smoothing"])
         n = int(self.params["smoothing_iterations"])
         mode = self.params["smooth_mode"]
-        vs = self.verts(fr.bent, mode)
+        vs, ring, loc, lptr, lnbr = self.layout(fr.bent, mode)
         if k <= 0 or n <= 0 or len(vs) == 0:
             return
         kf = k * float(fr.fade[fr.bent].max())
-        if mode == "position":
-            laplacian_smooth(fr.surface, vs, self.ptr, self.adj, kf, n, self._buf)
-        else:
-            d = self._d
-            np.subtract(fr.surface, fr.surface_base, out=d)
-            laplacian_smooth(d, vs, self.ptr, self.adj, kf, n, self._buf)
-            add_rows(fr.surface, fr.surface_base, d, vs)
+        laplacian_smooth(fr.surface, fr.surface_base, mode != "position", ring, loc, lptr,
+                         lnbr, kf, n, self._ring[:len(ring)], self._buf[:len(vs)])
