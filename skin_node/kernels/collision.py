@@ -93,8 +93,6 @@ class TriangleTree(NamedTuple):
     slot: np.ndarray       # (n,) positions into the region's triangles, leaf order
     leaf: np.ndarray       # (n,) each slot's leaf
     rcen: np.ndarray       # (n, 3) each slot's triangle centre at rest
-    rclo: np.ndarray       # (m, 3) low corner of the box of a node's rest centres
-    rchi: np.ndarray       # (m, 3) its high corner
     tcorner: np.ndarray    # (n, 3) each slot's corner vertex ids
     tloc: np.ndarray       # (n, 3) the same as positions into ``tv``
     tv: np.ndarray         # the triangles' vertices, sorted
@@ -146,20 +144,12 @@ def triangle_trees(X0: np.ndarray, F: np.ndarray, tris: np.ndarray,
     leaf = np.empty(len(slot), dtype=np.int64)
     for n in np.flatnonzero(child[:, 0] < 0):
         leaf[first[n]:first[n] + count[n]] = n
-    rclo, rchi = np.zeros((len(child), 3)), np.zeros((len(child), 3))
-    for n in range(len(child) - 1, -1, -1):       # children after their parent
-        if child[n, 0] < 0:
-            c = cen[slot[first[n]:first[n] + count[n]]]
-            rclo[n], rchi[n] = c.min(axis=0), c.max(axis=0)
-        else:
-            a, b = child[n]
-            rclo[n], rchi[n] = np.minimum(rclo[a], rclo[b]), np.maximum(rchi[a], rchi[b])
     corners = F[tris[slot]].ravel() if len(slot) else np.zeros(0, dtype=np.int64)
     tv, which = np.unique(corners, return_inverse=True)
     order = np.argsort(which, kind="stable")
     return TriangleTree(
         roots=roots, child=child, first=first, count=count, parent=parent, slot=slot,
-        leaf=leaf, rcen=np.ascontiguousarray(cen[slot]).reshape(-1, 3), rclo=rclo, rchi=rchi,
+        leaf=leaf, rcen=np.ascontiguousarray(cen[slot]).reshape(-1, 3),
         tcorner=corners.astype(np.int64).reshape(-1, 3),
         tloc=which.astype(np.int64).reshape(-1, 3), tv=tv.astype(np.int64),
         inc_ptr=np.searchsorted(which[order], np.arange(len(tv) + 1)).astype(np.int64),
@@ -241,15 +231,6 @@ def _refit(P, tloc, child, first, count, lo, hi, tlo, thi):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _box_far2(px, py, pz, lo, hi, n):
-    """Squared distance from p to the farthest point of box ``n``."""
-    dx = max(px - lo[n, 0], hi[n, 0] - px)
-    dy = max(py - lo[n, 1], hi[n, 1] - py)
-    dz = max(pz - lo[n, 2], hi[n, 2] - pz)
-    return dx * dx + dy * dy + dz * dz
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
 def _box_near2(px, py, pz, lo, hi, n):
     """Squared distance from p to box ``n`` (corners ``lo[n]``, ``hi[n]``; 0 inside)."""
     dx = max(lo[n, 0] - px, 0.0, px - hi[n, 0])
@@ -292,9 +273,9 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tree, fit, M, tri_bone, tri_n
     earlier call left there for the same vertex, which on return is the slot
     in the tree of the nearest triangle found (-1 for none within ``reach``;
     untouched for a vertex the bone filter drops). Skin moves little between
-    frames, so last frame's nearest is at or near this frame's, and starting
-    from its distance prunes most of the tree. The answer does not depend on
-    the hint.
+    frames, so last frame's nearest is at or near this frame's, and its
+    distance bounds the search from the start rather than ``reach``. The
+    answer does not depend on the hint.
 
     Returns
     -------
@@ -308,16 +289,16 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tree, fit, M, tri_bone, tri_n
         return out
     for t in nb.prange(nth):
         _crossed_range(X, X0, F, verts, vside, tris, tree.roots, tree.child, tree.first,
-                       tree.count, tree.slot, tree.rcen, tree.rclo, tree.rchi, tree.tloc,
-                       tree.tcorner, P, lo, hi, tlo, thi, M, tri_bone, tri_normal, segA, segB,
-                       R, rest_sep, rest_tol, reach, hint, t, nth, out)
+                       tree.count, tree.slot, tree.rcen, tree.tloc, tree.tcorner, P, lo, hi,
+                       tlo, thi, M, tri_bone, tri_normal, segA, segB, R, rest_sep, rest_tol,
+                       reach, hint, t, nth, out)
     return out
 
 
 @nb.njit(cache=True, nogil=True, fastmath=FAST)
 def _crossed_range(X, X0, F, verts, vside, tris, roots, child, first, count, slot, rcen,
-                   rclo, rchi, tloc, tcorner, P, lo, hi, tlo, thi, M, tri_bone, tri_normal, segA,
-                   segB, R, rest_sep, rest_tol, reach, hint, first_v, step, out):
+                   tloc, tcorner, P, lo, hi, tlo, thi, M, tri_bone, tri_normal, segA, segB, R,
+                   rest_sep, rest_tol, reach, hint, first_v, step, out):
     """The per-vertex test of :func:`crossed_vertices` for ``verts[first_v::step]``."""
     sep2 = rest_sep * rest_sep
     stack = np.empty(128, dtype=np.int64)
@@ -333,48 +314,39 @@ def _crossed_range(X, X0, F, verts, vside, tris, roots, child, first, count, slo
             continue
         rx, ry, rz = X0[i, 0], X0[i, 1], X0[i, 2]
         best, best_d, best_in, best_q = -1, reach * reach, False, -1
-        q = hint[a]
-        if q >= 0:
-            # Last frame's nearest first: its distance bounds the search. It is
-            # measured exactly as in the leaves, and ties still go to the lowest
-            # face, so the answer is the one without the hint.
-            a0, a1, a2 = tloc[q, 0], tloc[q, 1], tloc[q, 2]
-            qx, qy, qz, inside = _closest_on_triangle(
-                px, py, pz, P[a0, 0], P[a0, 1], P[a0, 2], P[a1, 0], P[a1, 1],
-                P[a1, 2], P[a2, 0], P[a2, 1], P[a2, 2])
-            d = (px - qx) ** 2 + (py - qy) ** 2 + (pz - qz) ** 2
-            if d < best_d:
-                best, best_d, best_in, best_q = tris[slot[q]], d, inside, q
         stack[0] = roots[o]
         near[0] = _box_near2(px, py, pz, lo, hi, roots[o])
         top = 1
-        while top > 0:
-            top -= 1
-            n = stack[top]
-            if near[top] > best_d:
-                continue                   # beyond the nearest triangle found since
-            c0 = child[n, 0]
-            if c0 >= 0:
-                c1 = child[n, 1]
-                d0 = _box_near2(px, py, pz, lo, hi, c0)
-                d1 = _box_near2(px, py, pz, lo, hi, c1)
-                # A subtree whose triangles all sat within rest_sep of the vertex
-                # at rest (its own neighbourhood) holds no candidate: skip it.
-                if _box_far2(rx, ry, rz, rclo, rchi, c0) < sep2:
-                    d0 = np.inf
-                if _box_far2(rx, ry, rz, rclo, rchi, c1) < sep2:
-                    d1 = np.inf
-                # the nearer child on top, so it is searched first
-                if d0 > d1:
-                    c0, c1, d0, d1 = c1, c0, d1, d0
-                if d1 <= best_d:
-                    stack[top], near[top] = c1, d1
-                    top += 1
-                if d0 <= best_d:
-                    stack[top], near[top] = c0, d0
-                    top += 1
-                continue
-            for q in range(first[n], first[n] + count[n]):
+        # Last frame's nearest first, as a leaf of its own: its distance bounds
+        # the search from the start. The leaf code below measures it, exactly as
+        # when the search meets it again, and ties still go to the lowest face,
+        # so the answer is the one without the hint.
+        seed = hint[a]
+        while top > 0 or seed >= 0:
+            if seed >= 0:
+                q0, q1, seed = seed, seed + 1, -1
+            else:
+                top -= 1
+                n = stack[top]
+                if near[top] > best_d:
+                    continue                   # beyond the nearest triangle found since
+                c0 = child[n, 0]
+                if c0 >= 0:
+                    c1 = child[n, 1]
+                    d0 = _box_near2(px, py, pz, lo, hi, c0)
+                    d1 = _box_near2(px, py, pz, lo, hi, c1)
+                    # the nearer child on top, so it is searched first
+                    if d0 > d1:
+                        c0, c1, d0, d1 = c1, c0, d1, d0
+                    if d1 <= best_d:
+                        stack[top], near[top] = c1, d1
+                        top += 1
+                    if d0 <= best_d:
+                        stack[top], near[top] = c0, d0
+                        top += 1
+                    continue
+                q0, q1 = first[n], first[n] + count[n]
+            for q in range(q0, q1):
                 if _box_near2(px, py, pz, tlo, thi, q) > best_d:
                     continue
                 gx, gy, gz = rcen[q, 0] - rx, rcen[q, 1] - ry, rcen[q, 2] - rz
