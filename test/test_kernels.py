@@ -667,6 +667,32 @@ def test_push_out_returns_a_vertex_to_its_rest_depth():
     assert list(_crossed(X, X0, F)) == [-1, -1]
 
 
+def test_push_and_recheck_pushes_every_crossed_vertex_and_names_what_changed():
+    """One push-out pass over a noisy layer through a crumpled patch: every
+    vertex that crossed a face is pushed, nothing else moves, and the vertices
+    to test again hold every one whose answer changed."""
+    from skin_node.kernels.collision import push_and_recheck, triangle_trees
+    Xall0, X, F, verts = _two_layers(seed=11)
+    reach = 0.03
+    pos = np.arange(len(verts))
+    hit = _crossed(X, Xall0, F, verts=verts, reach=reach)
+    assert (hit >= 0).sum() >= 5
+    tree = triangle_trees(Xall0, F, np.arange(len(F)), np.zeros(len(F), dtype=np.int64))
+    before = X.copy()
+    again, pushed, projected = push_and_recheck(
+        X, Xall0, F, np.eye(4)[None], np.zeros(len(F), dtype=np.int64),
+        np.tile([0.0, 0.0, 1.0], (len(F), 1)), tree, np.zeros(len(F), dtype=np.int64), reach,
+        verts, np.ones(len(verts), dtype=np.int64), pos, hit, 1e-4, True, np.zeros(3),
+        np.array([0.0, 0.0, 1.0]))
+    assert list(pushed) == list(verts[hit >= 0]) and len(projected) == 0 == (hit == -2).sum()
+    moved = np.flatnonzero(np.abs(X - before).max(axis=1) > 0)
+    assert set(moved) == set(verts[hit != -1])
+    assert list(again) == sorted(set(again)) and set(pos[hit != -1]) <= set(again)
+    after = _crossed(X, Xall0, F, verts=verts, reach=reach)
+    assert set(np.flatnonzero(after != hit)) <= set(again)
+    assert (after != -1).sum() < (hit != -1).sum() // 2
+
+
 @pytest.mark.parametrize("relative", [False, True])
 def test_laplacian_smooth_is_jacobi_on_the_chosen_vertices_only(relative):
     """On an icosphere: ``p <- (1-k) p + k mean(one ring)`` for the chosen

@@ -497,6 +497,69 @@ def push_out(X, X0, F, M, tri_bone, tri_normal, verts, tris, eps):
 
 
 @nb.njit(cache=True, nogil=True)
+def push_and_recheck(X, X0, F, M, tri_bone, tri_normal, tree, tside, reach, verts, vside, pos,
+                     hit, eps, use_plane, pc, pn):
+    """One push-out pass of the collision stage over ``verts[pos]`` (a joint
+    region's vertices, ``pos`` sorted positions into them), given their
+    :func:`crossed_vertices` answer ``hit``.
+
+    Each vertex that crossed a triangle is pushed out in front of it
+    (:func:`push_out`); with ``use_plane``, each deep one (-2) is projected
+    onto the plane through ``pc`` with unit normal ``pn``, ``eps`` to its own
+    side. Returns (the positions into ``verts`` to test again, the pushed
+    vertices, the projected ones). To test again: the moved vertices, and
+    every vertex of the other side within :func:`dragged_reach` of where a
+    moved vertex was or is (:func:`near_dragged`): a pushed vertex drags its
+    triangles, up to its longest edge away, over the other side's skin."""
+    n_hit = n_tri = 0
+    for a in range(hit.shape[0]):
+        if hit[a] != -1:
+            n_hit += 1
+            if hit[a] >= 0:
+                n_tri += 1
+    moved, where = np.empty(n_hit, np.int64), np.empty(n_hit, np.int64)
+    tri_v, tri_f = np.empty(n_tri, np.int64), np.empty(n_tri, np.int64)
+    deep = np.empty(n_hit - n_tri, np.int64)
+    m = t = d = 0
+    for a in range(hit.shape[0]):
+        if hit[a] == -1:
+            continue
+        moved[m], where[m] = verts[pos[a]], pos[a]
+        m += 1
+        if hit[a] >= 0:
+            tri_v[t], tri_f[t] = verts[pos[a]], hit[a]
+            t += 1
+        else:
+            deep[d] = a
+            d += 1
+    P = np.empty((2 * n_hit, 3))
+    for a in range(n_hit):
+        for c in range(3):
+            P[a, c] = X[moved[a], c]
+    drag, sides = np.zeros(n_hit), np.zeros(n_hit, np.int64)
+    dragged_reach(X, tree, tside, moved, reach, drag, sides)
+    push_out(X, X0, F, M, tri_bone, tri_normal, tri_v, tri_f, eps)
+    projected = np.empty(deep.shape[0] if use_plane else 0, np.int64)
+    for b in range(projected.shape[0]):
+        a = deep[b]
+        i = verts[pos[a]]
+        sgn = 2.0 * vside[pos[a]] - 1.0
+        dist = (X[i, 0] - pc[0]) * pn[0] + (X[i, 1] - pc[1]) * pn[1] + (X[i, 2] - pc[2]) * pn[2]
+        for c in range(3):
+            X[i, c] -= (dist - sgn * eps) * pn[c]
+        projected[b] = i
+    dragged_reach(X, tree, tside, moved, reach, drag, sides)
+    R2, sides2 = np.empty(2 * n_hit), np.empty(2 * n_hit, np.int64)
+    for a in range(n_hit):
+        for c in range(3):
+            P[n_hit + a, c] = X[moved[a], c]
+        R2[a] = R2[n_hit + a] = drag[a]
+        sides2[a] = sides2[n_hit + a] = sides[a]
+    near = near_dragged(X, verts, vside, P, R2, sides2)
+    return merge_sorted(where, near), tri_v, projected
+
+
+@nb.njit(cache=True, nogil=True)
 def merge_sorted(a, b):
     """The union of two sorted int arrays, sorted, each value once."""
     out = np.empty(a.shape[0] + b.shape[0], dtype=np.int64)

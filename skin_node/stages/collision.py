@@ -6,8 +6,8 @@ import math
 import numba
 import numpy as np
 
-from ..kernels.collision import (crossed_vertices, dragged_reach, fit_tree, halfspace_project,
-                                 merge_sorted, near_dragged, push_out, tree_fit, triangle_trees)
+from ..kernels.collision import (crossed_vertices, fit_tree, halfspace_project, push_and_recheck,
+                                 tree_fit, triangle_trees)
 from ..rigging.weights import point_segment_distance
 from .base import Frame, KeyedCache, Stage
 
@@ -212,6 +212,9 @@ class Collision(Stage):
         # surface vertices the solve can move, per joint: embedded in a tet of its zone
         self._szone = r.zone[r.Etet].any(axis=1)
         self._moved = KeyedCache()
+        self._origin = np.zeros(3)
+        # positions of every vertex of each region: the first pass tests them all
+        self._every = [np.arange(len(v), dtype=np.int64) for v in self.regions.verts]
 
     def _plane_normal(self, fr: Frame, j: int, q: np.ndarray):
         skel = self.character.skeleton
@@ -302,12 +305,9 @@ class Collision(Stage):
                 crossed = hit != -1
                 if not crossed.any():
                     break
-                v, side = regs.verts[j], regs.vside[j]
-                if sub is not None:
-                    v, side = v[sub], side[sub]
-                sgn = 2.0 * side - 1.0
                 if plane is None and planar:
                     planar = False                   # one try at the paper's plane
+                    v = regs.verts[j] if sub is None else regs.verts[j][sub]
                     pj = fr.G[j, :3, 3]
                     idx = v[crossed]
                     far = idx[np.argmax(np.linalg.norm(X[idx] - pj, axis=1))]
@@ -319,31 +319,18 @@ class Collision(Stage):
                 if not self.params["collision_pushout"]:
                     break
                 # Residuals (creases the plane cannot separate): push each crossed
-                # vertex out in front of the skin it crossed, along that skin's normal.
-                tri = hit >= 0
-                moved = v[crossed]
-                tree = regs.tree(j)[0]
-                was = X[moved]
-                drag, sides = np.zeros(len(moved)), np.zeros(len(moved), dtype=np.int64)
-                dragged_reach(X, tree, regs.tside[j], moved, regs.cell(j), drag, sides)
-                push_out(X, self.V0, self.F, fr.M, regs.tri_bone, regs.tri_normal, v[tri],
-                         hit[tri], eps)
-                fr.touched.append(v[tri])
-                deep = hit == -2
-                if plane is not None and deep.any():
-                    pj, n = plane
-                    dist = (X[v[deep]] - pj) @ n
-                    X[v[deep]] -= (dist - sgn[deep] * eps)[:, None] * n[None, :]
-                    fr.touched.append(v[deep])
+                # vertex out in front of the skin it crossed, along that skin's
+                # normal, then recheck what moved and every vertex the moves can
+                # have changed (see push_and_recheck).
+                pc, pn = plane if plane is not None else (self._origin, self._origin)
+                sub, pushed_v, deep_v = push_and_recheck(
+                    X, self.V0, self.F, fr.M, regs.tri_bone, regs.tri_normal, regs.tree(j)[0],
+                    regs.tside[j], regs.cell(j), regs.verts[j], regs.vside[j],
+                    self._every[j] if sub is None else sub, hit, eps, plane is not None,
+                    np.ascontiguousarray(pc), np.ascontiguousarray(pn))
+                fr.touched.append(pushed_v)
+                if len(deep_v):
+                    fr.touched.append(deep_v)
                 pushed += int(crossed.sum())
-                where = np.flatnonzero(crossed) if sub is None else sub[crossed]
-                # Recheck what moved, and every vertex the moves can have changed:
-                # a pushed vertex drags its triangles, up to its longest edge away,
-                # over the other side's skin near them, before or after the push.
-                dragged_reach(X, tree, regs.tside[j], moved, regs.cell(j), drag, sides)
-                near = near_dragged(X, regs.verts[j], regs.vside[j],
-                                    np.concatenate([was, X[moved]]),
-                                    np.concatenate([drag, drag]), np.concatenate([sides, sides]))
-                sub = merge_sorted(where, near)
         fr.counts["projected"] = projected
         fr.counts["pushed"] = pushed
