@@ -104,8 +104,11 @@ class BagRecorder(Node):
     def _received(self, topic: str, conn, raw: bytes) -> None:
         self._queue.put((topic, conn, self.get_clock().now().nanoseconds, raw))
         if topic.lstrip("/") == POINTS_TOPIC:
-            with self.answered:
+            try:
                 stamp = header_stamp_ns(raw)
+            except ValueError:          # recorded as it came; answers nothing
+                return
+            with self.answered:
                 if self.answered_ns is None or stamp > self.answered_ns:
                     self.answered_ns = stamp
                 self.answered.notify_all()
