@@ -191,15 +191,15 @@ def test_replay_answers_each_valid_message_once_and_counts_bad_ones(tmp_path, st
     assert set(bad) == set(Reason)  # every rejection reason is exercised
     write_bag(tmp_path / "in", storage, stream)
     # In lockstep no valid frame may be skipped as stale; the bad ones are never
-    # answered (each waits out the 0.5 s) but for the backwards stamps, which are
+    # answered (each waits out the 1 s) but for the backwards stamps, which are
     # older than an answer already given.
     with arm_node(tmp_path, "-p", "pipeline:=[dqs, smooth]") as (proc, env, log):
         out = play_and_record(env, tmp_path / "in", tmp_path / "out", "--storage", storage,
-                              "--lockstep", "0.5")
+                              "--lockstep", "1")
         assert proc.poll() is None, "node died"
     clouds, diag = read_outputs(tmp_path / "out")
     unanswered = sum(len(v) for v in bad.values()) - len(bad[Reason.STAMP_BACKWARDS])
-    assert f"in lockstep ({unanswered} unanswered within 0.5 s)" in out
+    assert f"in lockstep ({unanswered} unanswered within 1 s)" in out
 
     assert [stamp_ns(c) for c in clouds] == valid
     for c in clouds:
