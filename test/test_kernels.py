@@ -574,9 +574,9 @@ def test_the_crossing_test_answers_the_same_from_any_earlier_nearest_triangle():
 def test_the_crossing_test_is_the_brute_force_nearest_triangle_rule(rest_sep, cells):
     """On a crumpled patch, the tree search gives, vertex for vertex, what
     testing every triangle gives (the nearest within reach, the lowest face
-    among equally near ones, none whose centre sat within ``rest_sep`` at rest;
-    with 7 mm triangles and 15 mm the search also skips whole subtrees of such
-    triangles, and must skip no other)."""
+    among equally near ones, none whose centre sat within ``rest_sep`` at rest:
+    also with 7 mm triangles and a 15 mm separation, where a vertex's excluded
+    neighbourhood fills whole leaves of the tree)."""
     from skin_node.kernels.collision import _closest_on_triangle
     Xall0, Xall, F, verts = _two_layers(cells=cells)
     reach = 0.03
