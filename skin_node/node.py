@@ -152,7 +152,6 @@ class SkinNode(Node):
         stages = list(p("pipeline"))
         self._pipes = [skin_node.Pipeline(self.character, stages=stages, **self._pipeline_kwargs)
                        for _ in range(workers)]
-        self._frame_id = p("frame_id")
         t_warm = time.perf_counter()
         # Bent joints wake the solver and collision stages, and joints at their
         # limits fold skin through skin (push-out, rechecks): compile all of it
@@ -195,7 +194,7 @@ class SkinNode(Node):
         # What the set-parameters callback accepted, in full; each worker brings
         # its pipeline up to ``version`` before its next frame.
         self._config = {"version": 0, "stages": stages, "kwargs": dict(self._pipeline_kwargs),
-                        "frame_id": self._frame_id, "built": None}
+                        "frame_id": p("frame_id"), "built": None}
         self._announced = 0
         self._stopping = False
 
@@ -352,13 +351,13 @@ class SkinNode(Node):
                 deform_ms = 1e3 * (time.perf_counter() - t0)
                 if not np.all(np.isfinite(V)):
                     V = None
-                    self._failed += 1
+                    self._count_failure()
                     self.get_logger().warning("deformed surface has NaN/Inf; frame dropped",
                                               throttle_duration_sec=THROTTLE_S)
             except Exception as e:  # noqa: BLE001 - a bad frame must not stop the node
                 V = None
                 if not self._stopping:
-                    self._failed += 1
+                    self._count_failure()
                     self.get_logger().error(f"frame failed: {type(e).__name__}: {e}",
                                             throttle_duration_sec=THROTTLE_S)
             with self._cond:            # wait for the poses taken before this one
@@ -372,13 +371,18 @@ class SkinNode(Node):
                     self._worker_frames[w] += 1
             except Exception as e:  # noqa: BLE001
                 if not self._stopping:
-                    self._failed += 1
+                    self._count_failure()
                     self.get_logger().error(f"publish failed: {type(e).__name__}: {e}",
                                             throttle_duration_sec=THROTTLE_S)
             finally:
                 with self._cond:
                     self._published = seq + 1
                     self._cond.notify_all()
+
+    def _count_failure(self) -> None:
+        """One more failed frame; under the lock, as several workers may fail at once."""
+        with self._cond:
+            self._failed += 1
 
     def _publish(self, V: np.ndarray, stamp, frame_id: str, pipe, deform_ms: float,
                  t_received: float) -> None:
