@@ -232,6 +232,7 @@ class Pipeline:
         self._buf = [np.empty((n, 3)), np.empty((k, 3)), np.empty((n, 3)), np.empty((k, 3))]
         self.timings: dict = {}
         self.counts: dict = {}
+        self._last_frame: Frame | None = None
 
     @classmethod
     def preset(cls, character, name: str, **params) -> "Pipeline":
@@ -284,6 +285,7 @@ class Pipeline:
         # numba's thread count is per calling thread (the node deforms in a worker)
         numba.set_num_threads(min(int(self.params["threads"]), numba.config.NUMBA_NUM_THREADS))
         fr = self.frame(q)
+        fr.tet_rows = self._tet_rows(fr)
         t = {"fk": (time.perf_counter() - t0) * 1e3}
         for name, stage in zip(self.stage_names, self.stages):
             a = time.perf_counter()
@@ -293,6 +295,26 @@ class Pipeline:
         t["total"] = (time.perf_counter() - t0) * 1e3
         self.timings = t
         self.counts = fr.counts
-        self.last_frame = fr
+        self._last_frame = fr
         return out
+
+    def _tet_rows(self, fr: Frame) -> np.ndarray | None:
+        """The tet-mesh vertices the stages after skinning use in ``fr``."""
+        need = [s.tet_vertices(fr) for s in self.stages[1:]]
+        if any(n is None for n in need):
+            return None
+        need = [n for n in need if len(n)] or [np.zeros(0, dtype=np.int64)]
+        return need[0] if len(need) == 1 else np.unique(np.concatenate(need))
+
+    @property
+    def last_frame(self) -> Frame | None:
+        """The :class:`Frame` of the last :meth:`deform` (None before the
+        first), its tet mesh complete: the vertices no stage needed are
+        skinned now, on first access (the buffers are reused by the next
+        :meth:`deform`)."""
+        fr = self._last_frame
+        if fr is not None and fr.unskinned is not None:
+            fr.unskinned()
+            fr.unskinned = None
+        return fr
 

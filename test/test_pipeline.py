@@ -221,6 +221,32 @@ def test_rest_pose_is_rest_mesh(arm):
         assert np.abs(V - arm.V).max() < 1e-9
 
 
+@pytest.mark.parametrize("skinning", ["lbs", "dqs"])
+def test_tet_mesh_is_skinned_where_the_solve_reads_it_and_whole_when_read_back(arm, skinning):
+    """Stage 1 skins only the tet vertices of the tets the solve touches; the
+    frame read back through ``last_frame`` has the whole tet mesh, equal to a
+    run that skinned every vertex up front, and the same surface."""
+    q = arm.pose(elbow_rz=2.2)
+    stages = [skinning, *DEFAULT_STAGES[1:]]
+    lazy, whole = Pipeline(arm, stages), Pipeline(arm, stages)
+    whole.stages[1].tet_vertices = lambda fr: None         # every vertex, up front
+    V, V_whole = lazy.deform(q), whole.deform(q)
+    rows = lazy._last_frame.tet_rows
+    n = len(arm.rig.TV)
+    assert 0 < len(rows) < 0.8 * n, (len(rows), n)          # the elbow's zone, not the arm
+    assert whole._last_frame.tet_rows is None
+    assert np.array_equal(V, V_whole)
+    fr, fr_whole = lazy.last_frame, whole.last_frame
+    assert fr.unskinned is None
+    assert np.array_equal(fr.tet, fr_whole.tet)
+    assert np.array_equal(fr.tet_base, fr_whole.tet_base)
+    # a pipeline with no tet stage skins none of the tet mesh until it is read
+    plain = Pipeline(arm, [skinning])
+    plain.deform(q)
+    assert len(plain._last_frame.tet_rows) == 0
+    assert np.array_equal(plain.last_frame.tet, fr_whole.tet_base)
+
+
 def test_timings_and_presets(small_arm):
     q = small_arm.pose(elbow_rz=2.0)
     for name in ("lbs", "dqs", "pbs", "paper", "default"):

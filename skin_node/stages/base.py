@@ -27,9 +27,15 @@ class Frame:
     surface : (n, 3) float
         Current surface; stages update it in place.
     tet : (k, 3) float
-        Current tet-mesh vertices.
+        Current tet-mesh vertices: only rows ``tet_rows`` while the stages run.
     surface_base, tet_base : (n, 3), (k, 3) float
         The stage-1 (skinning) result, kept for the embedding update.
+    tet_rows : int array or None
+        The tet-mesh vertices the stages after skinning use this frame (see
+        :meth:`Stage.tet_vertices`), the only ones stage 1 skins; None for all.
+    unskinned : callable or None
+        Skins the other rows, set by stage 1 when it left some out
+        (:attr:`skin_node.Pipeline.last_frame` calls it).
     seg_A, seg_B : (S, 3) float
         Posed bone segments (see :meth:`Skeleton.bone_segments`).
     counts : dict
@@ -54,6 +60,8 @@ class Frame:
     tet_base: np.ndarray
     seg_A: np.ndarray
     seg_B: np.ndarray
+    tet_rows: np.ndarray | None = None
+    unskinned: object = None
     counts: dict = field(default_factory=dict)
     touched: list = field(default_factory=list)
     memo: dict = field(default_factory=dict)
@@ -77,8 +85,17 @@ class Stage:
     def __call__(self, frame: Frame) -> None:  # pragma: no cover - interface
         raise NotImplementedError
 
+    def tet_vertices(self, frame: Frame) -> np.ndarray | None:
+        """The tet-mesh vertices this stage reads or moves in ``frame``, sorted
+        (None: all of them); stage 1 skins only those the stages ask for."""
+        return _NONE
+
     def reset(self) -> None:
         """Forget any state carried between frames."""
+
+
+_NONE = np.zeros(0, dtype=np.int64)
+_NONE.flags.writeable = False
 
 
 class KeyedCache:

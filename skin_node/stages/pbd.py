@@ -202,7 +202,16 @@ class PBD(Stage):
         vzone = np.ascontiguousarray(r.zone[sets[BIND][0]][:, bent], dtype=np.float64)
         # the surface vertices embedded in a tet with a simulated vertex
         sverts = np.flatnonzero(vmask[r.Etet].any(axis=1)).astype(np.int64)
-        return sets, w, vmask, vzone, sverts
+        # every tet vertex the solve and the embedding read: those of the tets
+        # with a simulated vertex (the surface's tets among them)
+        used = np.unique(r.T[tet]).astype(np.int64)
+        return sets, w, vmask, vzone, sverts, used
+
+    def tet_vertices(self, fr: Frame):
+        if self.params["iterations"] <= 0:
+            return super().tet_vertices(fr)
+        act = self._active(fr.bent)
+        return super().tet_vertices(fr) if act is None else act[5]
 
     def __call__(self, fr: Frame) -> None:
         p = self.params
@@ -210,7 +219,7 @@ class PBD(Stage):
         if act is None or p["iterations"] <= 0:
             fr.counts["active_tets"] = 0
             return
-        sets, w, vmask, vzone, sverts = act
+        sets, w, vmask, vzone, sverts, _ = act
         r = self.rig
         X = fr.tet
         xpbd = p["solver"] == "xpbd"

@@ -49,7 +49,12 @@ def _dual_quaternions(M, q):
 
 
 class LBS(Stage):
-    """``v' = sum_j w_j M_j v`` on the surface and on the tet mesh."""
+    """``v' = sum_j w_j M_j v`` on the surface and on the tet mesh.
+
+    Of the tet mesh, only the vertices the later stages use this frame
+    (``frame.tet_rows``, see :meth:`Stage.tet_vertices`) are skinned; the rest
+    are skinned when the frame is read back (:attr:`Pipeline.last_frame`).
+    """
 
     name = "lbs"
     skinning = True
@@ -61,15 +66,34 @@ class LBS(Stage):
         self.W = (r.Widx, r.Wval)
         self.TW = (r.TWidx, r.TWval)
 
-    def skin(self, V, W, M, out):
-        solver.lbs(V, W[0], W[1], M, out)
+    def transforms(self, fr: Frame) -> np.ndarray:
+        """The frame's bone transforms in the form :meth:`skin` takes."""
+        return np.ascontiguousarray(fr.M)
+
+    def skin(self, V, W, T, out, rows=None):
+        if rows is None:
+            solver.lbs(V, W[0], W[1], T, out)
+        else:
+            solver.lbs_rows(V, W[0], W[1], T, rows, out)
 
     def __call__(self, fr: Frame) -> None:
-        M = np.ascontiguousarray(fr.M)
-        self.skin(self.V, self.W, M, fr.surface)
-        self.skin(self.TV, self.TW, M, fr.tet)
+        T = self.transforms(fr)
+        self.skin(self.V, self.W, T, fr.surface)
         fr.surface_base[:] = fr.surface
-        fr.tet_base[:] = fr.tet
+        rows = fr.tet_rows
+        self.skin(self.TV, self.TW, T, fr.tet, rows)
+        if rows is None:
+            fr.tet_base[:] = fr.tet
+            return
+        fr.tet_base[rows] = fr.tet[rows]
+
+        def the_rest():
+            rest = np.ones(len(self.TV), dtype=bool)
+            rest[rows] = False
+            rest = np.flatnonzero(rest)
+            self.skin(self.TV, self.TW, T, fr.tet, rest)
+            fr.tet_base[rest] = fr.tet[rest]
+        fr.unskinned = the_rest
 
 
 class DQS(LBS):
@@ -78,9 +102,11 @@ class DQS(LBS):
 
     name = "dqs"
 
-    def skin(self, V, W, M, out):
-        solver.dqs(V, W[0], W[1], self._Q, out)
+    def transforms(self, fr: Frame) -> np.ndarray:
+        return matrices_to_dual_quaternions(fr.M)
 
-    def __call__(self, fr: Frame) -> None:
-        self._Q = matrices_to_dual_quaternions(fr.M)
-        super().__call__(fr)
+    def skin(self, V, W, T, out, rows=None):
+        if rows is None:
+            solver.dqs(V, W[0], W[1], T, out)
+        else:
+            solver.dqs_rows(V, W[0], W[1], T, rows, out)
