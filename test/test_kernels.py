@@ -693,6 +693,23 @@ def test_push_and_recheck_pushes_every_crossed_vertex_and_names_what_changed():
     assert (after != -1).sum() < (hit != -1).sum() // 2
 
 
+
+def test_fold_plane_bisects_the_bones_or_passes_through_the_crossing():
+    """A right-angle fold at the origin, parent bone along -x, child along +y:
+    the bisector's normal is (v - u) / |v - u|, toward the child; the paper's
+    plane is perpendicular to the bones' plane and holds the crossing point;
+    straight bones have no fold plane."""
+    from skin_node.kernels.collision import fold_plane
+    pj, pa, pb = np.zeros(3), np.array([-0.3, 0.0, 0.0]), np.array([0.0, 0.2, 0.0])
+    ok, n = fold_plane(pj, pa, pb, pj, False)
+    assert ok and np.allclose(n, np.array([1.0, 1.0, 0.0]) / np.sqrt(2.0))
+    q = np.array([0.05, 0.02, 0.01])
+    ok, n = fold_plane(pj, pa, pb, q, True)
+    assert ok and abs(n @ q) < 1e-15 and abs(n[2]) < 1e-15 and n @ [1.0, 1.0, 0.0] > 0
+    assert np.linalg.norm(n) == pytest.approx(1.0)
+    ok, _ = fold_plane(pj, pa, np.array([0.4, 0.0, 0.0]), pj, False)
+    assert not ok
+
 @pytest.mark.parametrize("relative", [False, True])
 def test_laplacian_smooth_is_jacobi_on_the_chosen_vertices_only(relative):
     """On an icosphere: ``p <- (1-k) p + k mean(one ring)`` for the chosen

@@ -612,3 +612,112 @@ def halfspace_project(X, verts, vside, crossed, segA, segB, R, c, n, eps, halfsp
             moved[k] = i
             k += 1
     return k
+
+
+@nb.njit(cache=True, nogil=True)
+def fold_plane(pj, pa, pb, q, paper):
+    """Unit normal of the collision plane of a fold at joint ``pj`` between the
+    bone to its parent end ``pa`` and the bone to its child end ``pb``.
+
+    The plane is perpendicular to the plane of the two bones; with ``paper``
+    it passes through the crossing point ``q`` (Chen & Pan 2017), otherwise it
+    bisects the bones (normal ``v - u``). The normal points to the child side.
+    Returns (False, zeros) when the bones are straight (no fold to part)."""
+    u = pa - pj
+    v = pb - pj
+    u = u / (math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]) + 1e-300)
+    v = v / (math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) + 1e-300)
+    n = np.zeros(3)
+    m = np.array([u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
+                  u[0] * v[1] - u[1] * v[0]])
+    if math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]) < 1e-3:
+        return False, n
+    if paper:
+        w = q - pj
+        n[:] = (m[1] * w[2] - m[2] * w[1], m[2] * w[0] - m[0] * w[2], m[0] * w[1] - m[1] * w[0])
+    else:
+        n[:] = v - u
+    if math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]) < 1e-9:
+        n[:] = v - u
+    n /= math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+    if n[0] * (v[0] - u[0]) + n[1] * (v[1] - u[1]) + n[2] * (v[2] - u[2]) < 0:
+        n = -n
+    return True, n
+
+
+@nb.njit(cache=True, nogil=True)
+def resolve_region(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, tside, verts,
+                   vside, R, segA, segB, rest_sep, rest_tol, reach, cell, hint, pos, passes,
+                   planar, paper, upfront, halfspace, pushout, pj, pa, pb, eps, nth):
+    """The collision stage on one joint region: up to ``passes`` rounds of
+    detection (:func:`crossed_vertices` over ``verts[pos]``) and resolution.
+
+    A folding joint (``planar``) first has its crossed skin projected onto
+    the plane of its fold (:func:`fold_plane` of ``pj``, ``pa``, ``pb``, then
+    :func:`halfspace_project`): up front for the bisector with ``halfspace``
+    (``upfront``), else once after the first detection, through the farthest
+    crossed vertex with ``paper``. Skin still crossed is pushed out in front of
+    the skin it crossed and the moves rechecked (:func:`push_and_recheck`),
+    with ``pushout``. ``refit``: fit the tree's boxes afresh first (the
+    region's first test this frame), else only grow them where skin moved.
+    ``hint`` (len(verts),) as in :func:`crossed_vertices`; ``cell`` the
+    recheck reach. Returns (the vertices moved, how many were projected onto
+    the plane, how many pushed out)."""
+    nv = verts.shape[0]
+    moved = np.empty((passes + 1) * nv + 1, dtype=np.int64)
+    nm = projected = pushed = 0
+    have_plane = False
+    n = np.zeros(3)
+    none = np.zeros(nv, dtype=np.bool_)
+    if upfront and planar:
+        have_plane, n = fold_plane(pj, pa, pb, pj, False)
+        if have_plane:
+            k = halfspace_project(X, verts, vside, none, segA, segB, R, pj, n, eps, halfspace,
+                                  moved[nm:])
+            nm += k
+            projected += k
+    for _ in range(passes):
+        fit_tree(X, tree, fit, refit)
+        refit = False
+        h = hint[pos]
+        hit = crossed_vertices(X, X0, F, verts[pos], vside[pos], tris, tree, fit, M, tri_bone,
+                               tri_normal, segA, segB, R, rest_sep, rest_tol, reach, h, nth)
+        hint[pos] = h
+        n_hit = 0
+        for a in range(hit.shape[0]):
+            if hit[a] != -1:
+                n_hit += 1
+        if n_hit == 0:
+            break
+        if planar and not have_plane:
+            planar = False                     # one try at the paper's plane
+            far, far_d = -1, -1.0
+            for a in range(hit.shape[0]):
+                if hit[a] != -1:
+                    i = verts[pos[a]]
+                    d = math.sqrt((X[i, 0] - pj[0]) ** 2 + (X[i, 1] - pj[1]) ** 2
+                                  + (X[i, 2] - pj[2]) ** 2)
+                    if d > far_d:
+                        far, far_d = i, d
+            have_plane, n = fold_plane(pj, pa, pb, X[far], paper)
+            if have_plane:
+                crossed = np.zeros(nv, dtype=np.bool_)
+                for a in range(hit.shape[0]):
+                    crossed[pos[a]] = hit[a] != -1
+                k = halfspace_project(X, verts, vside, crossed, segA, segB, R, pj, n, eps,
+                                      halfspace, moved[nm:])
+                nm += k
+                projected += k
+                pos = np.arange(nv)
+                continue
+        if not pushout:
+            break
+        pos, pushed_v, deep_v = push_and_recheck(
+            X, X0, F, M, tri_bone, tri_normal, tree, tside, cell, verts, vside, pos, hit, eps,
+            have_plane, pj, n)
+        moved[nm:nm + pushed_v.shape[0]] = pushed_v
+        nm += pushed_v.shape[0]
+        moved[nm:nm + deep_v.shape[0]] = deep_v
+        nm += deep_v.shape[0]
+        pushed += n_hit
+    return moved[:nm], projected, pushed

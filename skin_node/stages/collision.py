@@ -1,24 +1,13 @@
 """Post-processing: skin passing through skin in the joint regions."""
 from __future__ import annotations
 
-import math
-
 import numba
 import numpy as np
 
-from ..kernels.collision import (crossed_vertices, fit_tree, halfspace_project, push_and_recheck,
-                                 tree_fit, triangle_trees)
+from ..kernels.collision import (crossed_vertices, fit_tree, resolve_region, tree_fit,
+                                 triangle_trees)
 from ..rigging.weights import point_segment_distance
 from .base import Frame, KeyedCache, Stage
-
-
-def _norm(a: np.ndarray) -> float:
-    return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
-                     a[0] * b[1] - a[1] * b[0]])
 
 
 class JointRegions:
@@ -160,6 +149,26 @@ class JointRegions:
             self._hints[j][sub] = hint
         return out
 
+    def resolve(self, X, X0, F, M, j: int, pos: np.ndarray, posed, ends, *, planar: bool,
+                paper: bool, upfront: bool, halfspace: bool, pushout: bool, passes: int,
+                eps: float):
+        """The collision stage's detect-and-resolve passes over joint ``j``'s
+        vertices at positions ``pos`` (:func:`resolve_region`); ``posed`` as
+        in :meth:`crossed` (the frame's), ``ends`` the joint and its bones' far
+        ends. Returns (the vertices moved, how many projected, how many pushed)."""
+        tree, fit = self.tree(j)
+        was, wasX = self._fitted[j]
+        if self._hints[j] is None:
+            self._hints[j] = -np.ones(len(self.verts[j]), dtype=np.int64)
+        out = resolve_region(
+            X, X0, F, np.ascontiguousarray(M), self.tri_bone, self.tri_normal, tree, fit,
+            was is not posed or wasX is not X, self.tris[j], self.tside[j], self.verts[j],
+            self.vside[j], self.R[j], posed[0], posed[1], 3.0 * self.edge, 0.5 * self.radius[j],
+            self.cell(j), self.cell(j), self._hints[j], pos, passes, planar, paper, upfront,
+            halfspace, pushout, *ends, eps, numba.get_num_threads())
+        self._fitted[j] = (posed, X)
+        return out
+
     def cell(self, j: int) -> float:
         """How near the other side's skin :meth:`crossed` looks, for joint ``j``
         (three median edges, at least a quarter of the limb radius)."""
@@ -212,49 +221,20 @@ class Collision(Stage):
         # surface vertices the solve can move, per joint: embedded in a tet of its zone
         self._szone = r.zone[r.Etet].any(axis=1)
         self._moved = KeyedCache()
-        self._origin = np.zeros(3)
         # positions of every vertex of each region: the first pass tests them all
         self._every = [np.arange(len(v), dtype=np.int64) for v in self.regions.verts]
 
-    def _plane_normal(self, fr: Frame, j: int, q: np.ndarray):
+    def _fold_ends(self, fr: Frame, j: int):
+        """Joint ``j``'s posed centre and the far ends of its two bones: its
+        parent and its child (or its bone's tip)."""
         skel = self.character.skeleton
         P = fr.G[:, :3, 3]
-        pj = P[j]
-        u = P[skel.parents[j]] - pj
         if self.child[j] >= 0:
-            v = P[self.child[j]] - pj
+            end = P[self.child[j]]
         else:
-            tip = fr.M[j, :3, :3] @ skel.tips[j] + fr.M[j, :3, 3]
-            v = tip - pj
-        # 3-vectors: plain arithmetic, not numpy's general cross and norm
-        u = u / (_norm(u) + 1e-300)
-        v = v / (_norm(v) + 1e-300)
-        m = _cross(u, v)
-        if _norm(m) < 1e-3:
-            return None
-        n = _cross(m, q - pj) if self.params["collision_plane"] == "paper" else v - u
-        if _norm(n) < 1e-9:
-            n = v - u
-        n = n / _norm(n)
-        if n @ (v - u) < 0:
-            n = -n
-        return pj, n
-
-    def _halfspace(self, X, fr: Frame, j: int, plane, crossed, eps: float, posed) -> int:
-        """Project the crossed vertices of joint ``j``'s region onto the plane, each
-        ``eps`` to its own side; with ``collision_halfspace`` (past the paper) also
-        every vertex of the interpenetration zone on the wrong side of it."""
-        regs = self.regions
-        v = regs.verts[j]
-        pj, n = plane
-        if crossed is None:
-            crossed = np.zeros(len(v), dtype=np.bool_)
-        moved = np.empty(len(v), dtype=np.int64)
-        k = halfspace_project(X, v, regs.vside[j], crossed, posed[0], posed[1], regs.R[j],
-                              np.ascontiguousarray(pj), np.ascontiguousarray(n), eps,
-                              bool(self.params["collision_halfspace"]), moved)
-        fr.touched.append(moved[:k])
-        return k
+            end = fr.M[j, :3, :3] @ skel.tips[j] + fr.M[j, :3, 3]
+        return (np.ascontiguousarray(P[j]), np.ascontiguousarray(P[skel.parents[j]]),
+                np.ascontiguousarray(end))
 
     def __call__(self, fr: Frame) -> None:
         if not self.params["self_collision"]:
@@ -281,56 +261,24 @@ class Collision(Stage):
         parents = [j for j in sorted(up) if skel.parents[j] >= 0 and len(regs.verts[j])] \
             if self.params["collision_parent"] else []
         fr.counts["collision_joints"] = list(joints) + siblings + parents
-        upfront = self.params["collision_plane"] == "bisector" and \
-            self.params["collision_halfspace"]
+        p = self.params
+        paper = p["collision_plane"] == "paper"
+        upfront = not paper and bool(p["collision_halfspace"])
         for j in list(joints) + siblings + parents:
-            plane, planar = None, j in joints
-            sub = None
+            pos = self._every[j]
             if j in parents:
-                sub = self._moved.get((j, folded.tobytes()), lambda: np.flatnonzero(
+                pos = self._moved.get((j, folded.tobytes()), lambda: np.flatnonzero(
                     self._szone[regs.verts[j]][:, list(joints)].any(axis=1)))
-                if not len(sub):
+                if not len(pos):
                     continue
             posed = regs.posed_segments(j, fr.M, fr.memo)
-            if upfront and planar:
-                # The bisector does not depend on where the skin crossed, so the
-                # half-space projection needs no detection pass before it.
-                plane = self._plane_normal(fr, j, fr.G[j, :3, 3])
-                if plane is not None:
-                    projected += self._halfspace(X, fr, j, plane, None, eps, posed)
-            for _ in range(int(self.params["collision_passes"])):
-                # After a push-out only the pushed vertices and the skin their moves
-                # can have changed may cross anew: later passes check just those.
-                hit = regs.crossed(X, self.V0, self.F, fr.M, j, sub, posed)
-                crossed = hit != -1
-                if not crossed.any():
-                    break
-                if plane is None and planar:
-                    planar = False                   # one try at the paper's plane
-                    v = regs.verts[j] if sub is None else regs.verts[j][sub]
-                    pj = fr.G[j, :3, 3]
-                    idx = v[crossed]
-                    far = idx[np.argmax(np.linalg.norm(X[idx] - pj, axis=1))]
-                    plane = self._plane_normal(fr, j, X[far])
-                    if plane is not None:
-                        projected += self._halfspace(X, fr, j, plane, crossed, eps, posed)
-                        sub = None
-                        continue
-                if not self.params["collision_pushout"]:
-                    break
-                # Residuals (creases the plane cannot separate): push each crossed
-                # vertex out in front of the skin it crossed, along that skin's
-                # normal, then recheck what moved and every vertex the moves can
-                # have changed (see push_and_recheck).
-                pc, pn = plane if plane is not None else (self._origin, self._origin)
-                sub, pushed_v, deep_v = push_and_recheck(
-                    X, self.V0, self.F, fr.M, regs.tri_bone, regs.tri_normal, regs.tree(j)[0],
-                    regs.tside[j], regs.cell(j), regs.verts[j], regs.vside[j],
-                    self._every[j] if sub is None else sub, hit, eps, plane is not None,
-                    np.ascontiguousarray(pc), np.ascontiguousarray(pn))
-                fr.touched.append(pushed_v)
-                if len(deep_v):
-                    fr.touched.append(deep_v)
-                pushed += int(crossed.sum())
+            moved, k, n = regs.resolve(
+                X, self.V0, self.F, fr.M, j, pos, posed, self._fold_ends(fr, j),
+                planar=j in joints, paper=paper, upfront=upfront,
+                halfspace=bool(p["collision_halfspace"]), pushout=bool(p["collision_pushout"]),
+                passes=int(p["collision_passes"]), eps=eps)
+            fr.touched.append(moved)
+            projected += k
+            pushed += n
         fr.counts["projected"] = projected
         fr.counts["pushed"] = pushed
