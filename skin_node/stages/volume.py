@@ -145,7 +145,7 @@ def move_along_normals(X, verts, m, g, C, budget):
 @nb.njit(cache=True, nogil=True)
 def ring_distance(sources, ptr, nbr, hops, limit, queue):
     """Breadth-first hop counts from ``sources`` over the one-ring CSR, up to
-    ``limit``; ``hops`` must hold ``limit`` everywhere on entry. Returns the
+    ``limit``; ``hops`` must hold at least ``limit`` everywhere on entry. Returns the
     number of vertices reached; ``queue[:n]`` lists them (to reset ``hops``)."""
     n = 0
     for a in range(sources.shape[0]):
@@ -299,7 +299,10 @@ class Volume(Stage):
         reached = 0
         if fr.touched:
             src = np.concatenate(fr.touched).astype(np.int64)
-            reached = ring_distance(src, self._ptr, self._adj, hops, self._hop_limit, self._queue)
+            # Rings past the widest bent joint's width count as far (mobility 1):
+            # the walk needs 5 or 6 of the 8 the chest would.
+            limit = int(min(np.ceil(self._ring_width[js].max()) + 1, self._hop_limit))
+            reached = ring_distance(src, self._ptr, self._adj, hops, limit, self._queue)
         worst = 1.0
         cap = float(self.params["volume_max_bulge"])
         checked = float(self.params["volume_checked_below"])
