@@ -126,9 +126,13 @@ PIPELINE_PARAMS = {
                                   "stage 1 is left as it is"),
     "active_fade": ParamSpec(float, 0.2, 1e-3, 3.2, "corrections fade in over this much rotation "
                              "past the threshold (rad), so nothing pops"),
-    "threads": ParamSpec(int, 1, 1, 64, "threads of the numba kernels and of the solve, split "
-                         "into that many slabs (2: 10.9 against 14.3 ms on the humanoid walk, "
-                         "but slower through ROS, and the slabs reorder the solve)"),
+    "threads": ParamSpec(int, 1, 1, 64, "threads of the numba kernels: skinning, the collision "
+                         "test, smoothing, the embedding; the skin comes out the same on any "
+                         "number (2: 8.3 against 10.1 ms on the humanoid walk, but slower "
+                         "through ROS on two cores)"),
+    "solve_slabs": ParamSpec(bool, False, description="with threads > 1, also split the solve "
+                             "into one slab of the tet mesh per thread: faster, but it reorders "
+                             "the Gauss-Seidel sweep, so the skin then depends on threads"),
     "self_collision": ParamSpec(bool, True, description="run the collision stage"),
     "collision_angle": ParamSpec(float, 1.0, 0.0, 3.2, "joints bent less than this (rad) cannot "
                                  "fold skin onto skin and are not checked"),

@@ -298,15 +298,33 @@ def test_stability_10000_random_frames(small_arm):
     assert np.linalg.norm(V - ch.V, axis=1).max() < 1e-3
 
 
+def test_two_threads_give_the_skin_of_one(humanoid):
+    """Without solve_slabs, threads only split work whose result does not
+    depend on the split (skinning, the collision test, smoothing, the
+    embedding): the walk comes out bitwise the same on two threads as on one."""
+    import numba
+    from skin_node import make_clip
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("numba has one thread here")
+    one, two = Pipeline(humanoid, threads=1), Pipeline(humanoid, threads=2)
+    frames = make_clip("walk", humanoid.skeleton).frames[::24]
+    try:
+        for q in frames:
+            assert np.array_equal(one.deform(q), two.deform(q))
+        assert two.counts["pushed"] + two.counts["projected"] > 0      # collision ran
+    finally:
+        numba.set_num_threads(1)
+
+
 def test_two_thread_solve_splits_into_slabs_that_share_no_vertex(arm):
-    """threads: 2 sweeps two vertex-disjoint slabs at once, then the constraints
+    """threads: 2 with solve_slabs sweeps two vertex-disjoint slabs at once, then the constraints
     between them: the parts must not share a vertex (a race otherwise), the
     separator must be small, and running the parts in parallel must give what
     running them one after the other gives."""
     import numba
     from skin_node.kernels import solver
     from skin_node.stages.pbd import BIND, ENERGY, STRETCH, VOLUME
-    pipe = Pipeline(arm, ["dqs", "pbd"], threads=2)
+    pipe = Pipeline(arm, ["dqs", "pbd"], threads=2, solve_slabs=True)
     pipe.deform(arm.pose(elbow_rz=np.radians(120)))
     pbd, r = pipe.stages[1], arm.rig
     sets, w = pbd._sets.get(pbd._key, None)[:2]

@@ -2,6 +2,7 @@
 
     python tools/ab_time.py 6054e01                 # the built-in humanoid's walk, 4 pairs
     python tools/ab_time.py HEAD~3 --runs 6 --clip squat
+    python tools/ab_time.py HEAD --params '{"threads": 2}'   # a setting, same code
 
 This machine's run-to-run noise moves a clip's median by 10 to 20% within the
 hour, so two figures taken apart compare the hour, not the code. Here each run
@@ -30,7 +31,7 @@ import numpy as np
 from skin_node import Pipeline, load_character, make_clip
 ch = load_character("humanoid", surface_vertices=24000, progress=False)
 clip = make_clip(sys.argv[1], ch.skeleton)
-pipe = Pipeline(ch)
+pipe = Pipeline(ch, **json.loads(sys.argv[2]))
 for q in clip.frames[:10]:
     pipe.deform(q)
 times = {}
@@ -44,13 +45,14 @@ print(json.dumps({k: v if k == "source" else float(np.median(v)) for k, v in tim
 """
 
 
-def run(src: Path, cache: Path, clip: str) -> dict:
-    """Median ms per stage of ``clip``, timed in a child importing ``src``."""
+def run(src: Path, cache: Path, clip: str, params: str = "{}") -> dict:
+    """Median ms per stage of ``clip``, timed in a child importing ``src``,
+    its pipeline made with ``params`` (JSON)."""
     cache.mkdir(exist_ok=True)
     env = dict(os.environ, PYTHONPATH=str(src), NUMBA_CACHE_DIR=str(cache))
     # run from the cache folder: ``python -c`` puts the working folder first on
     # the path, and from a checkout that would import the checkout's package
-    p = subprocess.run([sys.executable, "-c", CHILD, clip], env=env, capture_output=True,
+    p = subprocess.run([sys.executable, "-c", CHILD, clip, params], env=env, capture_output=True,
                        text=True, cwd=cache)
     if p.returncode:
         raise RuntimeError(f"the timing run of {src} failed:\n{p.stderr[-2000:]}")
@@ -62,7 +64,17 @@ def main(argv: list | None = None) -> int:
     ap.add_argument("ref", help="the commit to compare with (anything git names)")
     ap.add_argument("--runs", type=int, default=4, help="pairs of runs")
     ap.add_argument("--clip", default="walk")
+    ap.add_argument("--params", default="{}", metavar="JSON",
+                    help="pipeline parameters of this checkout's side, e.g. '{\"threads\": 2}'")
+    ap.add_argument("--ref-params", default="{}", metavar="JSON",
+                    help="pipeline parameters of the commit's side")
     a = ap.parse_args(argv)
+    for name, text in (("--params", a.params), ("--ref-params", a.ref_params)):
+        try:
+            if not isinstance(json.loads(text), dict):
+                raise ValueError("not an object")
+        except ValueError as e:
+            ap.error(f"{name} must be a JSON object of parameters, got {text!r} ({e})")
     with tempfile.TemporaryDirectory(prefix="ab_time_") as tmp:
         tmp = Path(tmp)
         old = tmp / "ref"
@@ -75,7 +87,8 @@ def main(argv: list | None = None) -> int:
                   file=sys.stderr)
             return 2
         subprocess.run(["tar", "-x", "-C", str(old)], input=tar, check=True)
-        sides = {a.ref: (old, tmp / "cache_ref"), "this checkout": (REPO, tmp / "cache_new")}
+        sides = {a.ref: (old, tmp / "cache_ref", a.ref_params),
+                 "this checkout": (REPO, tmp / "cache_new", a.params)}
         res = {k: [] for k in sides}
         print(f"timing {a.clip} {a.runs} times on each side (the first run of a side "
               f"compiles its kernels)", file=sys.stderr, flush=True)
@@ -83,7 +96,8 @@ def main(argv: list | None = None) -> int:
             # the order alternates too, so neither side always runs on a warmer machine
             for k in (list(sides) if i % 2 == 0 else list(sides)[::-1]):
                 try:
-                    r = run(*sides[k], a.clip)
+                    src, cache, params = sides[k]
+                    r = run(src, cache, a.clip, params)
                 except RuntimeError as e:
                     print(f"ab_time: error: {e}", file=sys.stderr)
                     return 2
@@ -95,7 +109,8 @@ def main(argv: list | None = None) -> int:
                 print(f"[{i + 1}/{a.runs}] {k}: total {res[k][-1]['total']:.2f} ms",
                       file=sys.stderr, flush=True)
     stages = list(res["this checkout"][0])
-    print(f"humanoid:24000 {a.clip}, median ms per stage over {a.runs} runs each")
+    print(f"humanoid:24000 {a.clip}, median ms per stage over {a.runs} runs each"
+          + "".join(f"; {k} with {p}" for k, (_, _, p) in sides.items() if p != "{}"))
     for k, rs in res.items():
         print(f"  {k:>14}: " + "  ".join(f"{s} {np.median([r[s] for r in rs]):.2f}"
                                          for s in stages if s in rs[0]))

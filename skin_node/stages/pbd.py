@@ -53,7 +53,7 @@ class PBD(Stage):
     Past the paper, each behind a parameter: XPBD compliance (``solver:
     xpbd``); simulating only the zones of joints the pose bent
     (``active_regions``); a Gauss-Seidel sweep split into vertex-disjoint
-    slabs, one per thread, and the constraints between them (``threads``);
+    slabs, one per thread, and the constraints between them (``solve_slabs``);
     stopping once the largest correction is below ``tolerance``.
     """
 
@@ -160,11 +160,15 @@ class PBD(Stage):
         self._sets.clear()
         self._corr[:] = 0.0
 
+    def _parts(self) -> int:
+        """Slabs the solve is split into: one per thread with ``solve_slabs``."""
+        return int(self.params["threads"]) if self.params["solve_slabs"] else 1
+
     def _active(self, bent: np.ndarray):
         """Index arrays of the constraints to solve and the inverse masses, cached
         per set of bent joints (a walk cycles through a few sets)."""
         p = self.params
-        key = (bent.tobytes() if p["active_regions"] else b"all", int(p["threads"]))
+        key = (bent.tobytes() if p["active_regions"] else b"all", self._parts())
         act = self._sets.get(key, lambda: self._make_active(bent, key[1]))
         if key != self._key:
             self._key = key
@@ -252,7 +256,7 @@ class PBD(Stage):
                 solver.sweep(kind, X, w, self.mass, r.E, r.T, ks, r.bseg, fr.seg_A, fr.seg_B,
                              r.len0 if kind == STRETCH else r.vol0 if kind == VOLUME
                              else r.brest, r.erest, self.lam[kind], idx, bounds, k, alpha,
-                             int(p["threads"]))
+                             self._parts())
             for tets, verts, v0 in zones:
                 zone_volume_constraint(X, r.T, tets, verts, w, v0, 1.0, self._g)
             if contacts is not None:
