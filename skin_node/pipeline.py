@@ -128,7 +128,7 @@ PIPELINE_PARAMS = {
                              "past the threshold (rad), so nothing pops"),
     "threads": ParamSpec(int, 1, 1, 64, "threads of the numba kernels: skinning, the collision "
                          "test, smoothing, the embedding; the skin comes out the same on any "
-                         "number (2: 8.3 against 10.1 ms on the humanoid walk, but slower "
+                         "number (2: 7.5 against 9.6 ms on the humanoid walk, but no faster "
                          "through ROS on two cores)"),
     "solve_slabs": ParamSpec(bool, False, description="with threads > 1, also split the solve "
                              "into one slab of the tet mesh per thread: faster, but it reorders "
