@@ -247,6 +247,33 @@ def test_tet_mesh_is_skinned_where_the_solve_reads_it_and_whole_when_read_back(a
     assert np.array_equal(plain.last_frame.tet, fr_whole.tet_base)
 
 
+def test_frames_leave_no_reference_cycles(small_arm):
+    """A deformed frame is freed when the next one replaces it, not when the
+    cycle collector gets round to it: garbage in cycles grows the node's
+    resident memory between collections (and a collection is a pause)."""
+    import gc
+    pipe = Pipeline(small_arm)
+    poses = [small_arm.pose(elbow_rz=a) for a in np.linspace(0.5, 2.5, 12)]
+    for q in poses:                  # first calls compile, and compiling leaves cycles
+        pipe.deform(q)
+    gc.collect()
+    was = gc.isenabled()
+    gc.disable()
+    gc.set_debug(gc.DEBUG_SAVEALL)
+    try:
+        for q in poses:
+            pipe.deform(q)
+            assert pipe.last_frame.tet.shape == small_arm.rig.TV.shape
+        found = gc.collect()
+        kinds = sorted({type(o).__name__ for o in gc.garbage})
+    finally:
+        gc.set_debug(0)
+        gc.garbage.clear()
+        if was:
+            gc.enable()
+    assert found == 0, kinds
+
+
 def test_timings_and_presets(small_arm):
     q = small_arm.pose(elbow_rz=2.0)
     for name in ("lbs", "dqs", "pbs", "paper", "default"):

@@ -85,14 +85,17 @@ class LBS(Stage):
         if rows is None:
             fr.tet_base[:] = fr.tet
             return
-        fr.tet_base[rows] = fr.tet[rows]
+        tet, base = fr.tet, fr.tet_base
+        base[rows] = tet[rows]
 
         def the_rest():
+            # holds the frame's arrays, not the frame: a frame that held itself
+            # would wait for the cycle collector (+34 MB over 1000 walk frames)
             rest = np.ones(len(self.TV), dtype=bool)
             rest[rows] = False
             rest = np.flatnonzero(rest)
-            self.skin(self.TV, self.TW, T, fr.tet, rest)
-            fr.tet_base[rest] = fr.tet[rest]
+            self.skin(self.TV, self.TW, T, tet, rest)
+            base[rest] = tet[rest]
         fr.unskinned = the_rest
 
 
