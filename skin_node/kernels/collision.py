@@ -435,6 +435,19 @@ def near_dragged(X, verts, vside, P, R, sides):
 
 
 @nb.njit(cache=True, nogil=True)
+def longest_edge(X, F, tris):
+    """The longest edge of the triangles ``tris`` (rows of ``F``) in ``X``."""
+    best = 0.0
+    for a in range(tris.shape[0]):
+        f = tris[a]
+        for e in range(3):
+            i, k = F[f, e], F[f, (e + 1) % 3]
+            d = (X[i, 0] - X[k, 0]) ** 2 + (X[i, 1] - X[k, 1]) ** 2 + (X[i, 2] - X[k, 2]) ** 2
+            best = max(best, d)
+    return math.sqrt(best)
+
+
+@nb.njit(cache=True, nogil=True)
 def near_points(X, verts, P, r):
     """Positions into ``verts`` of the vertices within ``r`` of any point of ``P``."""
     out = np.empty(verts.shape[0], dtype=np.int64)

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from ..kernels.collision import (crossed_vertices, fit_tree, resolve_region, tree_fit,
-                                 triangle_trees)
+from ..kernels.collision import (crossed_vertices, fit_tree, longest_edge, resolve_region,
+                                 tree_fit, triangle_trees)
 from ..rigging.weights import point_segment_distance
 from .base import Frame, KeyedCache, Stage
 
@@ -176,9 +176,7 @@ class JointRegions:
 
     def longest_edge(self, j: int, X: np.ndarray) -> float:
         """The longest edge of joint ``j``'s triangles in ``X``."""
-        P = X[self._F[self.tris[j]]]                              # (t, 3, 3)
-        return float(np.sqrt(((P - P[:, [1, 2, 0]]) ** 2).sum(axis=2).max())) \
-            if len(P) else 0.0
+        return float(longest_edge(X, self._F, self.tris[j]))
 
     def active(self, bent: np.ndarray):
         """Joints of the bent joints' regions (cached per set of bent joints)."""
