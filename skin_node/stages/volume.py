@@ -34,12 +34,14 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numba as nb
 import numpy as np
 
 from ..metrics import mesh_volume, region_volume
 from .base import Frame, KeyedCache, Stage
-from ..kernels.collision import in_box, near_points, seg_dist
+from ..kernels.collision import (crossed_vertices, fit_tree, in_box, longest_edge,
+                                 near_points, seg_dist)
 from .collision import JointRegions
 
 
@@ -202,6 +204,113 @@ def restore_region(X, F, tris, c, verts, mob, side, fade, A, B, R, hops, ring_wi
     return vol / vol0
 
 
+@nb.njit(cache=True, nogil=True)
+def _crossed_at(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, verts, vside, R,
+                segA, segB, rest_sep, rest_tol, reach, hint, pos, nth):
+    """:func:`crossed_vertices` of ``verts[pos]``, the tree fit first (afresh
+    with ``refit``, else grown where skin moved) and ``hint[pos]`` kept."""
+    fit_tree(X, tree, fit, refit)
+    h = hint[pos]
+    out = crossed_vertices(X, X0, F, verts[pos], vside[pos], tris, tree, fit, M, tri_bone,
+                           tri_normal, segA, segB, R, rest_sep, rest_tol, reach, h, nth)
+    hint[pos] = h
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _new_crossings(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, verts, vside, R,
+                   segA, segB, rest_sep, rest_tol, reach, hint, pos, nth, v, keep):
+    """Of ``pos`` (positions into ``verts``), those whose vertex crosses skin
+    now but did not with ``v`` at ``keep``, and the triangles they cross (-2:
+    none, deep in the other side's flesh)."""
+    hit = _crossed_at(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, verts, vside,
+                      R, segA, segB, rest_sep, rest_tol, reach, hint, pos, nth)
+    now = np.flatnonzero(hit != -1)
+    if now.shape[0] == 0:
+        return pos[now], hit[now]
+    moved = np.empty((v.shape[0], 3))
+    for a in range(v.shape[0]):
+        for d in range(3):
+            moved[a, d] = X[v[a], d]
+            X[v[a], d] = keep[a, d]
+    before = _crossed_at(X, X0, F, M, tri_bone, tri_normal, tree, fit, False, tris, verts,
+                         vside, R, segA, segB, rest_sep, rest_tol, reach, hint, pos[now], nth)
+    for a in range(v.shape[0]):
+        for d in range(3):
+            X[v[a], d] = moved[a, d]
+    new = now[before == -1]
+    return pos[new], hit[new]
+
+
+@nb.njit(cache=True, nogil=True)
+def swell_checked(X, F, tris, c, v, mob, side, fade, A, B, R, hops, ring_width, vol0, max_move,
+                  g, m, passes, ratio, m_guarded, X0, M, tri_bone, tri_normal, tree, fit, refit, verts,
+                  vside, rest_sep, rest_tol, cell, hint, edge, emax, nth):
+    """:meth:`Volume._checked`'s swell and check of one joint region: the
+    arguments of :func:`restore_region` (``tris`` the region's triangles,
+    ``v`` its mobile vertices, ``A``, ``B`` and ``R`` its posed bones and flesh
+    radii), the guarded ``ratio`` and mobilities ``m_guarded``, then those of
+    the crossing test (:func:`crossed_vertices` over ``verts``, the region's
+    vertices; ``cell`` its reach, ``edge`` and ``emax`` the median and longest
+    rest edges). Returns the region's volume ratio."""
+    nv = v.shape[0]
+    keep = np.empty((nv, 3))
+    for a in range(nv):
+        for d in range(3):
+            keep[a, d] = X[v[a], d]
+    new = restore_region(X, F, tris, c, v, mob, side, fade, A, B, R, hops, ring_width, vol0,
+                         max_move, g, m, passes, False)
+    freed = np.flatnonzero(m[:nv] > m_guarded + 1e-9)
+    if freed.shape[0] == 0:
+        return new
+    reach = cell + 2.0 * emax
+    retest = max(reach, cell + longest_edge(X, F, tris) + 2.0 * max_move)
+    P = np.empty((2 * freed.shape[0], 3))
+    for b in range(freed.shape[0]):
+        for d in range(3):
+            P[b, d] = X[v[freed[b]], d]
+            P[freed.shape[0] + b, d] = keep[freed[b], d]
+    sub = in_box(X, verts, np.arange(verts.shape[0]), P, retest)
+    bad, tri = _new_crossings(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, verts,
+                              vside, R, A, B, rest_sep, rest_tol, cell, hint, sub, nth, v, keep)
+    every = np.arange(nv)
+    for r in (1.5 * edge, 3.0 * edge, reach, reach, reach):
+        if bad.shape[0] == 0:
+            return region_volume_gradient(X, F, tris, c[0], c[1], c[2], g) / vol0
+        # Put back the skin near each new crossing, then or now, and the corners
+        # of the triangle it crosses; test again around it.
+        P = np.empty((bad.shape[0], 3))
+        for b in range(bad.shape[0]):
+            for d in range(3):
+                P[b, d] = X[verts[bad[b]], d]
+        back = np.concatenate((near_points(X, v, P, r), near_points(keep, every, P, r)))
+        for b in range(tri.shape[0]):
+            if tri[b] < 0:
+                continue
+            for e in range(3):
+                corner = F[tri[b], e]
+                at = min(np.searchsorted(v, corner), nv - 1)
+                if v[at] == corner:
+                    back = np.append(back, at)
+        back = np.unique(back)
+        if back.shape[0] == 0:
+            break
+        P = np.empty((2 * back.shape[0], 3))
+        for b in range(back.shape[0]):
+            for d in range(3):
+                P[b, d] = X[v[back[b]], d]
+                P[back.shape[0] + b, d] = keep[back[b], d]
+                X[v[back[b]], d] = keep[back[b], d]
+        near = in_box(X, verts, sub, P, retest)
+        bad, tri = _new_crossings(X, X0, F, M, tri_bone, tri_normal, tree, fit, False, tris,
+                                  verts, vside, R, A, B, rest_sep, rest_tol, cell, hint, near,
+                                  nth, v, keep)
+    for a in range(nv):
+        for d in range(3):
+            X[v[a], d] = keep[a, d]
+    return ratio
+
+
 class Volume(Stage):
     """Volume constraints on the surface: one per bent joint's region, or one
     for the whole mesh (``volume_regions``)."""
@@ -337,66 +446,30 @@ class Volume(Stage):
         skin, then test it for skin crossings as the collision stage does (where
         the move can have changed them), and put back the skin around every new
         crossing, over a growing radius, up to five times; if crossings remain,
-        the whole region goes back to what the guards left. ``m_guarded``: the
-        mobilities of the guarded pass; ``max_move``: the most any skin moves
-        (``args``' own). Returns the region's volume ratio."""
-        X, regs = fr.surface, self.regions
-        v = self.rverts[j]
-        keep = X[v].copy()
-        new = restore_region(*args, False)
-        # Only skin the guards held back moved further than they let it: only
-        # skin within the test's reach of where that was or is now can have
-        # changed. The reach: the detection cell and a stretched edge (two of
-        # the longest rest edges) or, where longer, the longest edge of the
-        # region's triangles before or after the move (a lowered arm
-        # stretches skin to several rest edges; no corner moved more than
-        # max_move).
-        freed = self._m[:len(v)] > m_guarded + 1e-9
-        if not freed.any():
-            return new
-        reach = regs.cell(j) + 2.0 * regs.emax
-        retest = max(reach, regs.cell(j) + regs.longest_edge(j, X) + 2.0 * max_move)
-        sub = in_box(X, regs.verts[j], np.arange(len(regs.verts[j])),
-                     np.concatenate([X[v[freed]], keep[freed]]), retest)
-        posed = regs.posed_segments(j, fr.M, fr.memo)
-        bad, tri = self._new_crossings(fr, j, sub, posed, v, keep)
-        for r in (1.5 * regs.edge, 3.0 * regs.edge, reach, reach, reach):
-            if not len(bad):
-                c = fr.G[j, :3, 3]
-                return region_volume_gradient(X, self.F, regs.tris[j], c[0], c[1], c[2],
-                                              self._g) / self.rvol0[j]
-            # Put back the skin near each new crossing, then or now, and the
-            # corners of the triangle it crosses; test again around it. The
-            # radius grows from a ring to the test's reach while crossings stay.
-            P = X[regs.verts[j][bad]]
-            back = np.union1d(near_points(X, v, P, r),
-                              near_points(keep, np.arange(len(v)), P, r))
-            corners = self.F[tri[tri >= 0]].ravel()
-            at = np.minimum(np.searchsorted(v, corners), len(v) - 1)
-            back = np.union1d(back, at[v[at] == corners])
-            if not len(back):
-                break
-            P = np.concatenate([X[v[back]], keep[back]])       # where it was and is back
-            X[v[back]] = keep[back]
-            near = in_box(X, regs.verts[j], sub, P, retest)
-            bad, tri = self._new_crossings(fr, j, near, posed, v, keep)
-        X[v] = keep
-        return ratio
+        the whole region goes back to what the guards left (:func:`swell_checked`).
 
-    def _new_crossings(self, fr: Frame, j: int, sub, posed, v, keep):
-        """Positions into ``regions.verts[j]``, among ``sub``, of the vertices that
-        cross skin now but did not with ``v`` at ``keep``, and the triangles they
-        cross (-2: none, deep in the other side's flesh)."""
-        regs, X, X0 = self.regions, fr.surface, self.character.V
-        hit = regs.crossed(X, X0, self.F, fr.M, j, sub, posed)
-        now = hit != -1
-        if not now.any():
-            return sub[now], hit[now]
-        moved = X[v].copy()
-        X[v] = keep
-        before = regs.crossed(X, X0, self.F, fr.M, j, sub[now], posed) != -1
-        X[v] = moved
-        return sub[now][~before], hit[now][~before]
+        Only skin the guards held back moved further than they let it, and only
+        skin within the test's reach of where that was or is now can have
+        changed: the detection cell and a stretched edge (two of the longest
+        rest edges) or, where longer, the longest edge of the region's
+        triangles after the move (a lowered arm stretches skin to several rest
+        edges; no corner moved more than ``max_move``). The radius put back
+        grows from a ring to the test's reach while crossings stay.
+        ``m_guarded``: the mobilities of the guarded pass; ``max_move``: the
+        most any skin moves (``args``' own). Returns the region's volume ratio."""
+        regs = self.regions
+        posed = regs.posed_segments(j, fr.M, fr.memo)
+        tree, fit = regs.tree(j)
+        was, wasX = regs._fitted[j]
+        if regs._hints[j] is None:
+            regs._hints[j] = -np.ones(len(regs.verts[j]), dtype=np.int64)
+        out = swell_checked(*args, ratio, m_guarded, self.character.V,
+                            np.ascontiguousarray(fr.M), regs.tri_bone, regs.tri_normal, tree, fit,
+                            was is not posed or wasX is not fr.surface, regs.verts[j],
+                            regs.vside[j], 3.0 * regs.edge, 0.5 * regs.radius[j], regs.cell(j),
+                            regs._hints[j], regs.edge, regs.emax, numba.get_num_threads())
+        regs._fitted[j] = (posed, fr.surface)
+        return out
 
     def _whole(self, fr: Frame, js, posed, slack: float = 0.0) -> None:
         """One constraint on the whole mesh's volume, moving the bent joints' zones;
