@@ -668,10 +668,11 @@ def resolve_region(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, ts
     A folding joint (``planar``) first has its crossed skin projected onto
     the plane of its fold (:func:`fold_plane` of ``pj``, ``pa``, ``pb``, then
     :func:`halfspace_project`): up front for the bisector with ``halfspace``
-    (``upfront``), else once after the first detection, through the farthest
-    crossed vertex with ``paper``. Skin still crossed is pushed out in front of
-    the skin it crossed and the moves rechecked (:func:`push_and_recheck`),
-    with ``pushout``. ``refit``: fit the tree's boxes afresh first (the
+    (``upfront``: the bisector does not depend on where skin crossed, so it
+    needs no detection first), else once after the first detection, through
+    the farthest crossed vertex with ``paper``. Skin still crossed (creases the
+    plane cannot part) is pushed out in front of the skin it crossed and the
+    moves rechecked (:func:`push_and_recheck`), with ``pushout``. ``refit``: fit the tree's boxes afresh first (the
     region's first test this frame), else only grow them where skin moved.
     ``hint`` (len(verts),) as in :func:`crossed_vertices`; ``cell`` the
     recheck reach. Returns (the vertices moved, how many were projected onto
