@@ -141,7 +141,7 @@ PIPELINE_PARAMS = {
                                    "each still-crossed vertex out in front of the skin it crossed"),
     "collision_parent": ParamSpec(bool, True, description="also check the folding joints' "
                                   "parent region (the chest under lowered arms) where their "
-                                  "solve moved it (0.1 to 2.5 ms on the humanoid walk in three "
+                                  "solve moved it (0.1 to 2.5 ms on the humanoid walk in four "
                                   "runs of skin_bench ablation)"),
     "collision_plane": ParamSpec(str, "bisector", description="contact plane: 'paper' (through "
                                  "the farthest crossing point) or 'bisector' (of the two bones)",
