@@ -288,10 +288,11 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tree, fit, M, tri_bone, tri_n
     if tris.shape[0] == 0 or nv == 0:
         return out
     for t in nb.prange(nth):
+        # the index typed int64 whatever the caller: each type is another compile
         _crossed_range(X, X0, F, verts, vside, tris, tree.roots, tree.child, tree.first,
                        tree.count, tree.slot, tree.rcen, tree.tloc, tree.tcorner, P, lo, hi,
                        tlo, thi, M, tri_bone, tri_normal, segA, segB, R, rest_sep, rest_tol,
-                       reach, hint, t, nth, out)
+                       reach, hint, np.int64(t), nth, out)
     return out
 
 
@@ -636,25 +637,30 @@ def fold_plane(pj, pa, pb, q, paper):
     it passes through the crossing point ``q`` (Chen & Pan 2017), otherwise it
     bisects the bones (normal ``v - u``). The normal points to the child side.
     Returns (False, zeros) when the bones are straight (no fold to part)."""
-    u = pa - pj
-    v = pb - pj
-    u = u / (math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]) + 1e-300)
-    v = v / (math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) + 1e-300)
+    # scalars throughout: array expressions cost seconds of compiling here
+    ux, uy, uz = pa[0] - pj[0], pa[1] - pj[1], pa[2] - pj[2]
+    vx, vy, vz = pb[0] - pj[0], pb[1] - pj[1], pb[2] - pj[2]
+    L = math.sqrt(ux * ux + uy * uy + uz * uz) + 1e-300
+    ux, uy, uz = ux / L, uy / L, uz / L
+    L = math.sqrt(vx * vx + vy * vy + vz * vz) + 1e-300
+    vx, vy, vz = vx / L, vy / L, vz / L
     n = np.zeros(3)
-    m = np.array([u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
-                  u[0] * v[1] - u[1] * v[0]])
-    if math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]) < 1e-3:
+    mx, my, mz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    if math.sqrt(mx * mx + my * my + mz * mz) < 1e-3:
         return False, n
+    dx, dy, dz = vx - ux, vy - uy, vz - uz
     if paper:
-        w = q - pj
-        n[:] = (m[1] * w[2] - m[2] * w[1], m[2] * w[0] - m[0] * w[2], m[0] * w[1] - m[1] * w[0])
+        wx, wy, wz = q[0] - pj[0], q[1] - pj[1], q[2] - pj[2]
+        nx, ny, nz = my * wz - mz * wy, mz * wx - mx * wz, mx * wy - my * wx
     else:
-        n[:] = v - u
-    if math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]) < 1e-9:
-        n[:] = v - u
-    n /= math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
-    if n[0] * (v[0] - u[0]) + n[1] * (v[1] - u[1]) + n[2] * (v[2] - u[2]) < 0:
-        n = -n
+        nx, ny, nz = dx, dy, dz
+    if math.sqrt(nx * nx + ny * ny + nz * nz) < 1e-9:
+        nx, ny, nz = dx, dy, dz
+    L = math.sqrt(nx * nx + ny * ny + nz * nz)
+    nx, ny, nz = nx / L, ny / L, nz / L
+    if nx * dx + ny * dy + nz * dz < 0:
+        nx, ny, nz = -nx, -ny, -nz
+    n[0], n[1], n[2] = nx, ny, nz
     return True, n
 
 
@@ -672,8 +678,9 @@ def resolve_region(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, ts
     needs no detection first), else once after the first detection, through
     the farthest crossed vertex with ``paper``. Skin still crossed (creases the
     plane cannot part) is pushed out in front of the skin it crossed and the
-    moves rechecked (:func:`push_and_recheck`), with ``pushout``. ``refit``: fit the tree's boxes afresh first (the
-    region's first test this frame), else only grow them where skin moved.
+    moves rechecked (:func:`push_and_recheck`), with ``pushout``. ``refit``:
+    fit the tree's boxes afresh first (the region's first test this frame),
+    else only grow them where skin moved.
     ``hint`` (len(verts),) as in :func:`crossed_vertices`; ``cell`` the
     recheck reach. Returns (the vertices moved, how many were projected onto
     the plane, how many pushed out)."""

@@ -205,53 +205,49 @@ def restore_region(X, F, tris, c, verts, mob, side, fade, A, B, R, hops, ring_wi
 
 
 @nb.njit(cache=True, nogil=True)
-def _crossed_at(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, verts, vside, R,
-                segA, segB, rest_sep, rest_tol, reach, hint, pos, nth):
-    """:func:`crossed_vertices` of ``verts[pos]``, the tree fit first (afresh
-    with ``refit``, else grown where skin moved) and ``hint[pos]`` kept."""
-    fit_tree(X, tree, fit, refit)
-    h = hint[pos]
-    out = crossed_vertices(X, X0, F, verts[pos], vside[pos], tris, tree, fit, M, tri_bone,
-                           tri_normal, segA, segB, R, rest_sep, rest_tol, reach, h, nth)
-    hint[pos] = h
-    return out
-
-
-@nb.njit(cache=True, nogil=True)
 def _new_crossings(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, verts, vside, R,
                    segA, segB, rest_sep, rest_tol, reach, hint, pos, nth, v, keep):
     """Of ``pos`` (positions into ``verts``), those whose vertex crosses skin
     now but did not with ``v`` at ``keep``, and the triangles they cross (-2:
-    none, deep in the other side's flesh)."""
-    hit = _crossed_at(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, verts, vside,
-                      R, segA, segB, rest_sep, rest_tol, reach, hint, pos, nth)
-    now = np.flatnonzero(hit != -1)
-    if now.shape[0] == 0:
-        return pos[now], hit[now]
-    moved = np.empty((v.shape[0], 3))
-    for a in range(v.shape[0]):
-        for d in range(3):
-            moved[a, d] = X[v[a], d]
-            X[v[a], d] = keep[a, d]
-    before = _crossed_at(X, X0, F, M, tri_bone, tri_normal, tree, fit, False, tris, verts,
-                         vside, R, segA, segB, rest_sep, rest_tol, reach, hint, pos[now], nth)
+    none, deep in the other side's flesh). Each test fits the tree first
+    (afresh with ``refit``, else grown where skin moved) and keeps ``hint``."""
+    now, hit = pos, np.empty(0, dtype=np.int64)
+    for before in range(2):
+        if before:
+            now = pos[np.flatnonzero(hit != -1)]
+            if now.shape[0] == 0:
+                return now, hit[:0]
+            moved = np.empty((v.shape[0], 3))
+            for a in range(v.shape[0]):
+                for d in range(3):
+                    moved[a, d] = X[v[a], d]
+                    X[v[a], d] = keep[a, d]
+        fit_tree(X, tree, fit, refit and not before)
+        h = hint[now]
+        out = crossed_vertices(X, X0, F, verts[now], vside[now], tris, tree, fit, M, tri_bone,
+                               tri_normal, segA, segB, R, rest_sep, rest_tol, reach, h, nth)
+        hint[now] = h
+        if not before:
+            hit = out
     for a in range(v.shape[0]):
         for d in range(3):
             X[v[a], d] = moved[a, d]
-    new = now[before == -1]
-    return pos[new], hit[new]
+    crossing = hit[hit != -1]
+    new = np.flatnonzero(out == -1)
+    return now[new], crossing[new]
 
 
 @nb.njit(cache=True, nogil=True)
 def swell_checked(X, F, tris, c, v, mob, side, fade, A, B, R, hops, ring_width, vol0, max_move,
-                  g, m, passes, ratio, m_guarded, X0, M, tri_bone, tri_normal, tree, fit, refit, verts,
-                  vside, rest_sep, rest_tol, cell, hint, edge, emax, nth):
+                  g, m, passes, ratio, m_guarded, X0, M, tri_bone, tri_normal, tree, fit, refit,
+                  verts, vside, segA, segB, rest_sep, rest_tol, cell, hint, edge, emax, nth):
     """:meth:`Volume._checked`'s swell and check of one joint region: the
     arguments of :func:`restore_region` (``tris`` the region's triangles,
     ``v`` its mobile vertices, ``A``, ``B`` and ``R`` its posed bones and flesh
     radii), the guarded ``ratio`` and mobilities ``m_guarded``, then those of
     the crossing test (:func:`crossed_vertices` over ``verts``, the region's
-    vertices; ``cell`` its reach, ``edge`` and ``emax`` the median and longest
+    vertices, ``segA``, ``segB`` the posed bones as the collision stage has
+    them; ``cell`` its reach, ``edge`` and ``emax`` the median and longest
     rest edges). Returns the region's volume ratio."""
     nv = v.shape[0]
     keep = np.empty((nv, 3))
@@ -272,7 +268,8 @@ def swell_checked(X, F, tris, c, v, mob, side, fade, A, B, R, hops, ring_width, 
             P[freed.shape[0] + b, d] = keep[freed[b], d]
     sub = in_box(X, verts, np.arange(verts.shape[0]), P, retest)
     bad, tri = _new_crossings(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, verts,
-                              vside, R, A, B, rest_sep, rest_tol, cell, hint, sub, nth, v, keep)
+                              vside, R, segA, segB, rest_sep, rest_tol, cell, hint, sub, nth, v,
+                              keep)
     every = np.arange(nv)
     for r in (1.5 * edge, 3.0 * edge, reach, reach, reach):
         if bad.shape[0] == 0:
@@ -283,7 +280,10 @@ def swell_checked(X, F, tris, c, v, mob, side, fade, A, B, R, hops, ring_width, 
         for b in range(bad.shape[0]):
             for d in range(3):
                 P[b, d] = X[verts[bad[b]], d]
-        back = np.concatenate((near_points(X, v, P, r), near_points(keep, every, P, r)))
+        mark = np.zeros(nv, dtype=np.bool_)
+        for near_now in (near_points(X, v, P, r), near_points(keep, every, P, r)):
+            for b in range(near_now.shape[0]):
+                mark[near_now[b]] = True
         for b in range(tri.shape[0]):
             if tri[b] < 0:
                 continue
@@ -291,8 +291,8 @@ def swell_checked(X, F, tris, c, v, mob, side, fade, A, B, R, hops, ring_width, 
                 corner = F[tri[b], e]
                 at = min(np.searchsorted(v, corner), nv - 1)
                 if v[at] == corner:
-                    back = np.append(back, at)
-        back = np.unique(back)
+                    mark[at] = True
+        back = np.flatnonzero(mark)
         if back.shape[0] == 0:
             break
         P = np.empty((2 * back.shape[0], 3))
@@ -303,8 +303,8 @@ def swell_checked(X, F, tris, c, v, mob, side, fade, A, B, R, hops, ring_width, 
                 X[v[back[b]], d] = keep[back[b], d]
         near = in_box(X, verts, sub, P, retest)
         bad, tri = _new_crossings(X, X0, F, M, tri_bone, tri_normal, tree, fit, False, tris,
-                                  verts, vside, R, A, B, rest_sep, rest_tol, cell, hint, near,
-                                  nth, v, keep)
+                                  verts, vside, R, segA, segB, rest_sep, rest_tol, cell, hint,
+                                  near, nth, v, keep)
     for a in range(nv):
         for d in range(3):
             X[v[a], d] = keep[a, d]
@@ -466,7 +466,8 @@ class Volume(Stage):
         out = swell_checked(*args, ratio, m_guarded, self.character.V,
                             np.ascontiguousarray(fr.M), regs.tri_bone, regs.tri_normal, tree, fit,
                             was is not posed or wasX is not fr.surface, regs.verts[j],
-                            regs.vside[j], 3.0 * regs.edge, 0.5 * regs.radius[j], regs.cell(j),
+                            regs.vside[j], posed[0], posed[1], 3.0 * regs.edge,
+                            0.5 * regs.radius[j], regs.cell(j),
                             regs._hints[j], regs.edge, regs.emax, numba.get_num_threads())
         regs._fitted[j] = (posed, fr.surface)
         return out
