@@ -211,30 +211,31 @@ def _new_crossings(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, ve
     now but did not with ``v`` at ``keep``, and the triangles they cross (-2:
     none, deep in the other side's flesh). Each test fits the tree first
     (afresh with ``refit``, else grown where skin moved) and keeps ``hint``."""
-    now, hit = pos, np.empty(0, dtype=np.int64)
-    for before in range(2):
-        if before:
-            now = pos[np.flatnonzero(hit != -1)]
-            if now.shape[0] == 0:
-                return now, hit[:0]
-            moved = np.empty((v.shape[0], 3))
-            for a in range(v.shape[0]):
-                for d in range(3):
-                    moved[a, d] = X[v[a], d]
-                    X[v[a], d] = keep[a, d]
-        fit_tree(X, tree, fit, refit and not before)
-        h = hint[now]
-        out = crossed_vertices(X, X0, F, verts[now], vside[now], tris, tree, fit, M, tri_bone,
-                               tri_normal, segA, segB, R, rest_sep, rest_tol, reach, h, nth)
-        hint[now] = h
-        if not before:
-            hit = out
+    fit_tree(X, tree, fit, refit)
+    h = hint[pos]
+    hit = crossed_vertices(X, X0, F, verts[pos], vside[pos], tris, tree, fit, M, tri_bone,
+                           tri_normal, segA, segB, R, rest_sep, rest_tol, reach, h, nth)
+    hint[pos] = h
+    now = np.flatnonzero(hit != -1)
+    if now.shape[0] == 0:
+        return pos[now], hit[now]
+    # the same test of those, with v back at keep
+    moved = np.empty((v.shape[0], 3))
+    for a in range(v.shape[0]):
+        for d in range(3):
+            moved[a, d] = X[v[a], d]
+            X[v[a], d] = keep[a, d]
+    fit_tree(X, tree, fit, False)
+    p = pos[now]
+    h = hint[p]
+    before = crossed_vertices(X, X0, F, verts[p], vside[p], tris, tree, fit, M, tri_bone,
+                              tri_normal, segA, segB, R, rest_sep, rest_tol, reach, h, nth)
+    hint[p] = h
     for a in range(v.shape[0]):
         for d in range(3):
             X[v[a], d] = moved[a, d]
-    crossing = hit[hit != -1]
-    new = np.flatnonzero(out == -1)
-    return now[new], crossing[new]
+    new = now[before == -1]
+    return pos[new], hit[new]
 
 
 @nb.njit(cache=True, nogil=True)
