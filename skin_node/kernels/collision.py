@@ -296,6 +296,21 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tree, fit, M, tri_bone, tri_n
     return out
 
 
+@nb.njit(cache=True, nogil=True)
+def crossed_at(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, verts, vside, R, segA,
+               segB, rest_sep, rest_tol, reach, hint, pos, nth):
+    """:func:`crossed_vertices` of ``verts[pos]`` (``pos``: positions into a
+    joint region's vertices ``verts``), the tree's boxes fit to ``X`` first
+    (:func:`fit_tree`: afresh with ``refit``, else grown where skin moved) and
+    the region's ``hint`` (len(verts),) read and kept at ``pos``."""
+    fit_tree(X, tree, fit, refit)
+    h = hint[pos]
+    out = crossed_vertices(X, X0, F, verts[pos], vside[pos], tris, tree, fit, M, tri_bone,
+                           tri_normal, segA, segB, R, rest_sep, rest_tol, reach, h, nth)
+    hint[pos] = h
+    return out
+
+
 @nb.njit(cache=True, nogil=True, fastmath=FAST)
 def _crossed_range(X, X0, F, verts, vside, tris, roots, child, first, count, slot, rcen,
                    tloc, tcorner, P, lo, hi, tlo, thi, M, tri_bone, tri_normal, segA, segB, R,
@@ -666,7 +681,7 @@ def fold_plane(pj, pa, pb, q, paper):
 
 @nb.njit(cache=True, nogil=True)
 def resolve_region(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, tside, verts,
-                   vside, R, segA, segB, rest_sep, rest_tol, reach, cell, hint, pos, passes,
+                   vside, R, segA, segB, rest_sep, rest_tol, reach, hint, pos, passes,
                    planar, paper, upfront, halfspace, pushout, pj, pa, pb, eps, nth):
     """The collision stage on one joint region: up to ``passes`` rounds of
     detection (:func:`crossed_vertices` over ``verts[pos]``) and resolution.
@@ -680,10 +695,10 @@ def resolve_region(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, ts
     plane cannot part) is pushed out in front of the skin it crossed and the
     moves rechecked (:func:`push_and_recheck`), with ``pushout``. ``refit``:
     fit the tree's boxes afresh first (the region's first test this frame),
-    else only grow them where skin moved.
-    ``hint`` (len(verts),) as in :func:`crossed_vertices`; ``cell`` the
-    recheck reach. Returns (the vertices moved, how many were projected onto
-    the plane, how many pushed out)."""
+    else only grow them where skin moved. ``hint`` as in :func:`crossed_at`;
+    ``reach`` the test's, and the recheck's (:func:`push_and_recheck`).
+    Returns (the vertices moved, how many were projected onto the plane, how
+    many pushed out)."""
     nv = verts.shape[0]
     moved = np.empty((passes + 1) * nv + 1, dtype=np.int64)
     nm = projected = pushed = 0
@@ -698,12 +713,9 @@ def resolve_region(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, ts
             nm += k
             projected += k
     for _ in range(passes):
-        fit_tree(X, tree, fit, refit)
+        hit = crossed_at(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, verts, vside,
+                         R, segA, segB, rest_sep, rest_tol, reach, hint, pos, nth)
         refit = False
-        h = hint[pos]
-        hit = crossed_vertices(X, X0, F, verts[pos], vside[pos], tris, tree, fit, M, tri_bone,
-                               tri_normal, segA, segB, R, rest_sep, rest_tol, reach, h, nth)
-        hint[pos] = h
         n_hit = 0
         for a in range(hit.shape[0]):
             if hit[a] != -1:
@@ -734,7 +746,7 @@ def resolve_region(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, ts
         if not pushout:
             break
         pos, pushed_v, deep_v = push_and_recheck(
-            X, X0, F, M, tri_bone, tri_normal, tree, tside, cell, verts, vside, pos, hit, eps,
+            X, X0, F, M, tri_bone, tri_normal, tree, tside, reach, verts, vside, pos, hit, eps,
             have_plane, pj, n)
         moved[nm:nm + pushed_v.shape[0]] = pushed_v
         nm += pushed_v.shape[0]

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from ..kernels.collision import (crossed_vertices, fit_tree, longest_edge, resolve_region,
-                                 tree_fit, triangle_trees)
+from ..kernels.collision import (crossed_at, longest_edge, resolve_region, tree_fit,
+                                 triangle_trees)
 from ..rigging.weights import point_segment_distance
 from .base import Frame, KeyedCache, Stage
 
@@ -68,6 +68,8 @@ class JointRegions:
         self._trees, self._fits = [None] * J, [None] * J
         self._fitted = [(None, None)] * J          # (posed, X) each fit is for
         self._hints = [None] * J                    # last nearest triangle, per vertex
+        # positions of every vertex of each region (a test of the whole region)
+        self.every = [np.arange(len(v), dtype=np.int64) for v in self.verts]
         self._rest_seg = self._all_rest_segments()
 
     def rest_segments(self, j: int):
@@ -120,34 +122,37 @@ class JointRegions:
             self._fits[j] = tree_fit(self._trees[j])
         return self._trees[j], self._fits[j]
 
+    def search_state(self, j: int, X: np.ndarray, posed):
+        """Joint ``j``'s tree and fit buffers, whether the boxes must be fit
+        afresh, and its per-vertex hints (:func:`crossed_at`), for a test of the
+        skin ``X`` in the pose ``posed`` (:meth:`posed_segments` with the
+        frame's memo, or None). The boxes are fit once per pose; the frame's
+        later tests only grow them where the skin has moved since."""
+        tree, fit = self.tree(j)
+        was, wasX = self._fitted[j]
+        refit = posed is None or was is not posed or wasX is not X
+        self._fitted[j] = (None, None) if posed is None else (posed, X)
+        if self._hints[j] is None:
+            self._hints[j] = -np.ones(len(self.verts[j]), dtype=np.int64)
+        return tree, fit, refit, self._hints[j]
+
+    def test_limits(self, j: int):
+        """``rest_sep``, ``rest_tol`` and ``reach`` of joint ``j``'s crossing
+        test (:func:`crossed_vertices`)."""
+        return 3.0 * self.edge, 0.5 * self.radius[j], self.cell(j)
+
     def crossed(self, X: np.ndarray, X0: np.ndarray, F: np.ndarray, M: np.ndarray,
                 j: int, sub: np.ndarray | None = None, posed=None) -> np.ndarray:
         """Per vertex of ``verts[j]`` (or of its subset ``sub``, positions into
         ``verts[j]``): the crossed triangle, -2 deep inside, -1 not crossed.
         ``posed``: :meth:`posed_segments` of ``(j, M)`` with the frame's memo,
         if already at hand."""
-        fresh = posed is None
+        tree, fit, refit, hint = self.search_state(j, X, posed)
         A, B = self.posed_segments(j, M) if posed is None else posed
-        rad = self.radius[j]
-        t = self.tris[j]
-        v, side = self.verts[j], self.vside[j]
-        if sub is not None:
-            v, side = v[sub], side[sub]
-        # The tree's boxes are fit once per pose (``posed`` is a frame's own);
-        # the frame's later calls only grow them where the skin has moved since.
-        tree, fit = self.tree(j)
-        was, wasX = self._fitted[j]
-        fit_tree(X, tree, fit, fresh or was is not posed or wasX is not X)
-        self._fitted[j] = (None, None) if fresh else (posed, X)
-        if self._hints[j] is None:
-            self._hints[j] = -np.ones(len(self.verts[j]), dtype=np.int64)
-        hint = self._hints[j] if sub is None else self._hints[j][sub]
-        out = crossed_vertices(X, X0, F, v, side, t, tree, fit, np.ascontiguousarray(M),
-                               self.tri_bone, self.tri_normal, A, B, self.R[j], 3.0 * self.edge,
-                               0.5 * rad, self.cell(j), hint, numba.get_num_threads())
-        if sub is not None:
-            self._hints[j][sub] = hint
-        return out
+        return crossed_at(X, X0, F, np.ascontiguousarray(M), self.tri_bone, self.tri_normal, tree,
+                          fit, refit, self.tris[j], self.verts[j], self.vside[j], self.R[j], A, B,
+                          *self.test_limits(j), hint, self.every[j] if sub is None else sub,
+                          numba.get_num_threads())
 
     def resolve(self, X, X0, F, M, j: int, pos: np.ndarray, posed, ends, *, planar: bool,
                 paper: bool, upfront: bool, halfspace: bool, pushout: bool, passes: int,
@@ -156,18 +161,12 @@ class JointRegions:
         vertices at positions ``pos`` (:func:`resolve_region`); ``posed`` as
         in :meth:`crossed` (the frame's), ``ends`` the joint and its bones' far
         ends. Returns (the vertices moved, how many projected, how many pushed)."""
-        tree, fit = self.tree(j)
-        was, wasX = self._fitted[j]
-        if self._hints[j] is None:
-            self._hints[j] = -np.ones(len(self.verts[j]), dtype=np.int64)
-        out = resolve_region(
-            X, X0, F, np.ascontiguousarray(M), self.tri_bone, self.tri_normal, tree, fit,
-            was is not posed or wasX is not X, self.tris[j], self.tside[j], self.verts[j],
-            self.vside[j], self.R[j], posed[0], posed[1], 3.0 * self.edge, 0.5 * self.radius[j],
-            self.cell(j), self.cell(j), self._hints[j], pos, passes, planar, paper, upfront,
+        tree, fit, refit, hint = self.search_state(j, X, posed)
+        return resolve_region(
+            X, X0, F, np.ascontiguousarray(M), self.tri_bone, self.tri_normal, tree, fit, refit,
+            self.tris[j], self.tside[j], self.verts[j], self.vside[j], self.R[j], posed[0],
+            posed[1], *self.test_limits(j), hint, pos, passes, planar, paper, upfront,
             halfspace, pushout, *ends, eps, numba.get_num_threads())
-        self._fitted[j] = (posed, X)
-        return out
 
     def cell(self, j: int) -> float:
         """How near the other side's skin :meth:`crossed` looks, for joint ``j``
@@ -219,8 +218,6 @@ class Collision(Stage):
         # surface vertices the solve can move, per joint: embedded in a tet of its zone
         self._szone = r.zone[r.Etet].any(axis=1)
         self._moved = KeyedCache()
-        # positions of every vertex of each region: the first pass tests them all
-        self._every = [np.arange(len(v), dtype=np.int64) for v in self.regions.verts]
 
     def _fold_ends(self, fr: Frame, j: int):
         """Joint ``j``'s posed centre and the far ends of its two bones: its
@@ -263,7 +260,7 @@ class Collision(Stage):
         paper = p["collision_plane"] == "paper"
         upfront = not paper and bool(p["collision_halfspace"])
         for j in list(joints) + siblings + parents:
-            pos = self._every[j]
+            pos = regs.every[j]      # the first pass tests them all
             if j in parents:
                 pos = self._moved.get((j, folded.tobytes()), lambda: np.flatnonzero(
                     self._szone[regs.verts[j]][:, list(joints)].any(axis=1)))

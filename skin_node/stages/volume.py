@@ -40,8 +40,7 @@ import numpy as np
 
 from ..metrics import mesh_volume, region_volume
 from .base import Frame, KeyedCache, Stage
-from ..kernels.collision import (crossed_vertices, fit_tree, in_box, longest_edge,
-                                 near_points, seg_dist)
+from ..kernels.collision import crossed_at, in_box, longest_edge, near_points, seg_dist
 from .collision import JointRegions
 
 
@@ -209,13 +208,10 @@ def _new_crossings(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, ve
                    segA, segB, rest_sep, rest_tol, reach, hint, pos, nth, v, keep):
     """Of ``pos`` (positions into ``verts``), those whose vertex crosses skin
     now but did not with ``v`` at ``keep``, and the triangles they cross (-2:
-    none, deep in the other side's flesh). Each test fits the tree first
-    (afresh with ``refit``, else grown where skin moved) and keeps ``hint``."""
-    fit_tree(X, tree, fit, refit)
-    h = hint[pos]
-    hit = crossed_vertices(X, X0, F, verts[pos], vside[pos], tris, tree, fit, M, tri_bone,
-                           tri_normal, segA, segB, R, rest_sep, rest_tol, reach, h, nth)
-    hint[pos] = h
+    none, deep in the other side's flesh). Both tests are :func:`crossed_at`'s,
+    the first fitting the tree afresh with ``refit``."""
+    hit = crossed_at(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, verts, vside, R,
+                     segA, segB, rest_sep, rest_tol, reach, hint, pos, nth)
     now = np.flatnonzero(hit != -1)
     if now.shape[0] == 0:
         return pos[now], hit[now]
@@ -225,12 +221,8 @@ def _new_crossings(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, ve
         for d in range(3):
             moved[a, d] = X[v[a], d]
             X[v[a], d] = keep[a, d]
-    fit_tree(X, tree, fit, False)
-    p = pos[now]
-    h = hint[p]
-    before = crossed_vertices(X, X0, F, verts[p], vside[p], tris, tree, fit, M, tri_bone,
-                              tri_normal, segA, segB, R, rest_sep, rest_tol, reach, h, nth)
-    hint[p] = h
+    before = crossed_at(X, X0, F, M, tri_bone, tri_normal, tree, fit, False, tris, verts, vside,
+                        R, segA, segB, rest_sep, rest_tol, reach, hint, pos[now], nth)
     for a in range(v.shape[0]):
         for d in range(3):
             X[v[a], d] = moved[a, d]
@@ -460,18 +452,12 @@ class Volume(Stage):
         most any skin moves (``args``' own). Returns the region's volume ratio."""
         regs = self.regions
         posed = regs.posed_segments(j, fr.M, fr.memo)
-        tree, fit = regs.tree(j)
-        was, wasX = regs._fitted[j]
-        if regs._hints[j] is None:
-            regs._hints[j] = -np.ones(len(regs.verts[j]), dtype=np.int64)
-        out = swell_checked(*args, ratio, m_guarded, self.character.V,
-                            np.ascontiguousarray(fr.M), regs.tri_bone, regs.tri_normal, tree, fit,
-                            was is not posed or wasX is not fr.surface, regs.verts[j],
-                            regs.vside[j], posed[0], posed[1], 3.0 * regs.edge,
-                            0.5 * regs.radius[j], regs.cell(j),
-                            regs._hints[j], regs.edge, regs.emax, numba.get_num_threads())
-        regs._fitted[j] = (posed, fr.surface)
-        return out
+        tree, fit, refit, hint = regs.search_state(j, fr.surface, posed)
+        return swell_checked(*args, ratio, m_guarded, self.character.V,
+                             np.ascontiguousarray(fr.M), regs.tri_bone, regs.tri_normal, tree,
+                             fit, refit, regs.verts[j], regs.vside[j], posed[0], posed[1],
+                             *regs.test_limits(j), hint, regs.edge, regs.emax,
+                             numba.get_num_threads())
 
     def _whole(self, fr: Frame, js, posed, slack: float = 0.0) -> None:
         """One constraint on the whole mesh's volume, moving the bent joints' zones;
