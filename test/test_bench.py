@@ -67,12 +67,16 @@ def test_deviation_zero_at_rest_negative_for_lbs_at_150(arm, metrics):
     assert m["volume_ratio"] == pytest.approx(1.0)
     assert m["region_volume_ratio"] == pytest.approx(1.0)
     assert m["crossings"] == 0 and m["dev_min_mm"] == pytest.approx(0.0, abs=1e-6)
+    assert m["intersections"] == 0 and m["crumples"] == 0
     pipe, V = _deform(arm, "lbs", elbow_rz=ELBOW_150)
     m = metrics.measure(V, pipe.last_frame)
     assert m["dev_min_mm"] < -5.0                       # elbow collapse
     assert m["volume_ratio"] < 0.95
     assert m["region_joint"] == "elbow" and m["region_volume_ratio"] < 0.95
     assert m["crossings"] > 0
+    # the folded elbow's two sides pass through each other: 161 pairs of triangles
+    assert m["intersections"] > 50
+    assert np.isnan(metrics.measure(V, pipe.last_frame, crossings=False)["intersections"])
 
 
 def test_deviation_is_invariant_to_a_rigid_root_motion(arm, metrics):
@@ -102,7 +106,7 @@ def test_run_method_summary(arm):
     for k in ("ms_total_p50", "ms_total_p90", "ms_pbd_p50", "setup_s", "warmup_s",
               "volume_ratio_deepest", "collapse_mm", "bulge_mm", "crossings_max", "ref_mean_mm",
               "region_volume_ratio_deepest", "roughness_mm_max", "jitter_mm_p50",
-              "jitter_mm_max"):
+              "jitter_mm_max", "intersections_max", "crumples_max"):
         assert k in s and np.isfinite(s[k]), k
     assert s["frames"] == len(mo.frames) and s["ms_total_p90"] >= s["ms_total_p50"] > 0
     assert s["deepest_angle_deg"] > 140

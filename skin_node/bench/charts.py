@@ -17,6 +17,7 @@ ACCURACY = (
     ("collapse_mm", "max collapse (mm, radial proxy)", lambda v: -v),
     ("bulge_mm", "max bulge (mm, radial proxy)", abs),
     ("crossings_max", "max skin crossings (vertices)", abs),
+    ("intersections_max", "max skin-through-skin triangle pairs", abs),
     ("roughness_mm_max", "max joint-region roughness (mm)", abs),
     ("ref_mean_mm", "mean distance to converged reference (mm)", abs),
 )

@@ -183,8 +183,9 @@ def markdown_table(runs: list, clips: dict | None = None) -> str:
     f = _num
     lines = ["| method | scene | clip | ms p50 / p90 | volume at deepest bend | joint region "
              "at deepest bend / worst error | collapse / bulge (mm) | crossings (max) | "
+             "intersecting triangle pairs (max): skin through skin / crumpled | "
              "distance to reference (mm, mean / max) | jitter (mm, median / max) |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for s in rows:
         lines.append(
             f"| {s['method']} | {s['scene']} | {s['motion']} ({f(s['deepest_angle_deg'], 0)} deg) | "
@@ -192,7 +193,9 @@ def markdown_table(runs: list, clips: dict | None = None) -> str:
             f"{f(s['volume_ratio_deepest'], 3)} | {f(s['region_volume_ratio_deepest'], 3)} / "
             f"{f(100 * s['region_volume_error_max'], 1)}% | "
             f"{f(s['collapse_mm'], 1)} / {f(s['bulge_mm'], 1)} | "
-            f"{f(s['crossings_max'], 0)} | {f(s['ref_mean_mm'], 2)} / {f(s['ref_max_mm'], 1)} | "
+            f"{f(s['crossings_max'], 0)} | "
+            f"{f(s.get('intersections_max'), 0)} / {f(s.get('crumples_max'), 0)} | "
+            f"{f(s['ref_mean_mm'], 2)} / {f(s['ref_max_mm'], 1)} | "
             f"{f(s.get('jitter_mm_p50'), 1)} / {f(s.get('jitter_mm_max'), 1)} |")
     return "\n".join(lines)
 
@@ -245,8 +248,9 @@ def ablation_table(runs: list) -> str:
     base = {(r["scene"], r["motion"]): r for r in runs if r["method"] == "default"}
     f = lambda v, d=1: _num(v, d)  # noqa: E731
     lines = ["| variant | scene | clip | ms p50 (against default) | joint region at deepest "
-             "bend / worst error | collapse / bulge (mm) | crossings (max) | jitter (mm, "
-             "median / max) |", "|---|---|---|---|---|---|---|---|"]
+             "bend / worst error | collapse / bulge (mm) | crossings (max) | intersecting "
+             "triangle pairs (max): through / crumpled | jitter (mm, median / max) |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for r in runs:
         b = base.get((r["scene"], r["motion"]))
         d = r["ms_total_p50"] - b["ms_total_p50"] if b else float("nan")
@@ -256,6 +260,7 @@ def ablation_table(runs: list) -> str:
             f"{f(r['region_volume_ratio_deepest'], 3)} / "
             f"{f(100 * r['region_volume_error_max'])}% | "
             f"{f(r['collapse_mm'])} / {f(r['bulge_mm'])} | {f(r['crossings_max'], 0)} | "
+            f"{f(r.get('intersections_max'), 0)} / {f(r.get('crumples_max'), 0)} | "
             f"{f(r.get('jitter_mm_p50'))} / {f(r.get('jitter_mm_max'))} |")
     return "\n".join(lines)
 

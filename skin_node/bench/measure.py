@@ -28,6 +28,12 @@ Timing
 ``crossings``
     Joint-region vertices that have passed through the skin
     (:func:`skin_node.stages.collision.count_crossings`).
+``intersections`` / ``crumples``
+    Pairs of triangles of the whole surface that pass through each other,
+    found exactly (:class:`skin_node.kernels.intersect.SelfIntersections`),
+    independent of the crossing test above: pairs that were more than three
+    median edges apart at rest (skin through skin) / nearer ones (the surface
+    crumpled over itself). Counted on the same frames as ``crossings``.
 ``roughness_mm``
     Mean umbrella-Laplacian length over all joint-region vertices
     (:func:`skin_node.metrics.roughness`), mm; its rest value is in the summary.
@@ -61,6 +67,7 @@ import numpy as np
 from .. import default_clip_name, load_character, make_clip
 from ..metrics import mesh_volume, region_volume
 from ..pipeline import PRESETS, STAGE_NAMES, Pipeline
+from ..kernels.intersect import SelfIntersections
 from ..stages.collision import JointRegions, count_crossings
 
 #: Skinning-only stages: iterations, tets and active_threshold do not change their result.
@@ -316,6 +323,7 @@ class SceneMetrics:
         self.F = ch.F
         self.V0 = mesh_volume(ch.V, ch.F)
         self.regions = JointRegions(ch)
+        self.intersections = SelfIntersections(ch.V, ch.F, 3.0 * self.regions.edge)
         # joint-region volumes at rest, about each joint's rest position
         self.region_joints = np.array([j for j in range(skel.n_joints)
                                        if skel.parents[j] >= 0 and len(self.regions.tris[j])])
@@ -371,6 +379,8 @@ class SceneMetrics:
             out["region_volume_ratio"] = self.region_ratio(V, frame.G, j)
         out["crossings"] = (count_crossings(V, self.character.V, self.F, frame.M, self.regions)
                             if crossings else np.nan)
+        out["intersections"], out["crumples"] = (self.intersections(V) if crossings
+                                                 else (np.nan, np.nan))
         return out
 
 
@@ -517,6 +527,10 @@ def summarize(res: RunResult, times: dict, **extra) -> dict:
         "bulge_mm": float(np.nanmax(col("dev_max_mm"))),
         "crossings_max": float(np.nanmax(col("crossings"))) if np.isfinite(col("crossings")).any()
         else float("nan"),
+        "intersections_max": float(np.nanmax(col("intersections")))
+        if np.isfinite(col("intersections")).any() else float("nan"),
+        "crumples_max": float(np.nanmax(col("crumples")))
+        if np.isfinite(col("crumples")).any() else float("nan"),
         "roughness_mm_max": float(np.nanmax(col("roughness_mm"))),
         "inverted_tets_max": float(np.nanmax(col("inverted_tets"))),
         "inverted_skin_tets_max": float(np.nanmax(col("inverted_skin_tets"))),

@@ -1,0 +1,172 @@
+"""Exact triangle-triangle intersections of a surface with itself (numba).
+
+An independent check of the collision stage: its crossing test asks whether a
+vertex sits behind the skin nearest to it, which is how it finds what to move;
+this asks the geometric question directly, for every pair of triangles.
+"""
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from .collision import fit_tree, tree_fit, triangle_trees
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _plane_side(ax, ay, az, bx, by, bz, cx, cy, cz, px, py, pz):
+    """(b - a) x (c - a) . (p - a): which side of the plane of abc ``p`` is on."""
+    ux, uy, uz = bx - ax, by - ay, bz - az
+    vx, vy, vz = cx - ax, cy - ay, cz - az
+    return ((uy * vz - uz * vy) * (px - ax) + (uz * vx - ux * vz) * (py - ay)
+            + (ux * vy - uy * vx) * (pz - az))
+
+
+@nb.njit(cache=True, nogil=True)
+def _span(p0, p1, p2, d0, d1, d2):
+    """Where a triangle meets the other one's plane, as an interval of the
+    projections ``p`` of its corners onto the planes' common line, from the
+    corners' signed distances ``d`` to that plane (not all of one sign)."""
+    # the corner alone on its side of the plane, and the other two
+    if d0 * d1 > 0.0:
+        a, b, c, da, db, dc = p2, p0, p1, d2, d0, d1
+    elif d0 * d2 > 0.0:
+        a, b, c, da, db, dc = p1, p0, p2, d1, d0, d2
+    elif d1 * d2 > 0.0 or d0 != 0.0:
+        a, b, c, da, db, dc = p0, p1, p2, d0, d1, d2
+    elif d1 != 0.0:
+        a, b, c, da, db, dc = p1, p0, p2, d1, d0, d2
+    else:
+        a, b, c, da, db, dc = p2, p0, p1, d2, d0, d1
+    t1 = a + (b - a) * da / (da - db) if da != db else b
+    t2 = a + (c - a) * da / (da - dc) if da != dc else c
+    return min(t1, t2), max(t1, t2)
+
+
+@nb.njit(cache=True, nogil=True)
+def triangles_intersect(X, i0, i1, i2, j0, j1, j2):
+    """Whether triangles ``X[i0, i1, i2]`` and ``X[j0, j1, j2]`` meet (Moller
+    1997, "A fast triangle-triangle intersection test"). Coplanar pairs count
+    as apart: skin lying flat on skin has not passed through it."""
+    a0 = _plane_side(X[j0, 0], X[j0, 1], X[j0, 2], X[j1, 0], X[j1, 1], X[j1, 2], X[j2, 0],
+                     X[j2, 1], X[j2, 2], X[i0, 0], X[i0, 1], X[i0, 2])
+    a1 = _plane_side(X[j0, 0], X[j0, 1], X[j0, 2], X[j1, 0], X[j1, 1], X[j1, 2], X[j2, 0],
+                     X[j2, 1], X[j2, 2], X[i1, 0], X[i1, 1], X[i1, 2])
+    a2 = _plane_side(X[j0, 0], X[j0, 1], X[j0, 2], X[j1, 0], X[j1, 1], X[j1, 2], X[j2, 0],
+                     X[j2, 1], X[j2, 2], X[i2, 0], X[i2, 1], X[i2, 2])
+    if (a0 > 0.0 and a1 > 0.0 and a2 > 0.0) or (a0 < 0.0 and a1 < 0.0 and a2 < 0.0):
+        return False
+    if a0 == 0.0 and a1 == 0.0 and a2 == 0.0:
+        return False
+    b0 = _plane_side(X[i0, 0], X[i0, 1], X[i0, 2], X[i1, 0], X[i1, 1], X[i1, 2], X[i2, 0],
+                     X[i2, 1], X[i2, 2], X[j0, 0], X[j0, 1], X[j0, 2])
+    b1 = _plane_side(X[i0, 0], X[i0, 1], X[i0, 2], X[i1, 0], X[i1, 1], X[i1, 2], X[i2, 0],
+                     X[i2, 1], X[i2, 2], X[j1, 0], X[j1, 1], X[j1, 2])
+    b2 = _plane_side(X[i0, 0], X[i0, 1], X[i0, 2], X[i1, 0], X[i1, 1], X[i1, 2], X[i2, 0],
+                     X[i2, 1], X[i2, 2], X[j2, 0], X[j2, 1], X[j2, 2])
+    if (b0 > 0.0 and b1 > 0.0 and b2 > 0.0) or (b0 < 0.0 and b1 < 0.0 and b2 < 0.0):
+        return False
+    # the common line's direction: the cross product of the two normals; project
+    # onto its largest axis
+    ux, uy, uz = X[i1, 0] - X[i0, 0], X[i1, 1] - X[i0, 1], X[i1, 2] - X[i0, 2]
+    vx, vy, vz = X[i2, 0] - X[i0, 0], X[i2, 1] - X[i0, 1], X[i2, 2] - X[i0, 2]
+    n1 = (uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
+    ux, uy, uz = X[j1, 0] - X[j0, 0], X[j1, 1] - X[j0, 1], X[j1, 2] - X[j0, 2]
+    vx, vy, vz = X[j2, 0] - X[j0, 0], X[j2, 1] - X[j0, 1], X[j2, 2] - X[j0, 2]
+    n2 = (uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
+    lx = abs(n1[1] * n2[2] - n1[2] * n2[1])
+    ly = abs(n1[2] * n2[0] - n1[0] * n2[2])
+    lz = abs(n1[0] * n2[1] - n1[1] * n2[0])
+    ax = 0 if lx >= ly and lx >= lz else (1 if ly >= lz else 2)
+    s0, s1 = _span(X[i0, ax], X[i1, ax], X[i2, ax], a0, a1, a2)
+    t0, t1 = _span(X[j0, ax], X[j1, ax], X[j2, ax], b0, b1, b2)
+    return s0 <= t1 and t0 <= s1
+
+
+@nb.njit(cache=True, nogil=True)
+def intersecting_pairs(X, F, tris, roots, child, first, count, slot, lo, hi, tlo, thi, out):
+    """Pairs of triangles of ``tris`` (rows of ``F``) that intersect in ``X``
+    and share no corner, each once, found through their bounding-volume tree
+    (:func:`~skin_node.kernels.collision.triangle_trees`, boxes fit to ``X``).
+    Writes up to len(out) pairs (face ids, lower first) into ``out``; returns
+    how many there are."""
+    n = 0
+    stack = np.empty(128, dtype=np.int64)
+    for s in range(slot.shape[0]):
+        f = tris[slot[s]]
+        i0, i1, i2 = F[f, 0], F[f, 1], F[f, 2]
+        for r in range(2):
+            if roots[r] < 0:
+                continue
+            stack[0] = roots[r]
+            top = 1
+            while top > 0:
+                top -= 1
+                nd = stack[top]
+                if (lo[nd, 0] > thi[s, 0] or hi[nd, 0] < tlo[s, 0] or lo[nd, 1] > thi[s, 1]
+                        or hi[nd, 1] < tlo[s, 1] or lo[nd, 2] > thi[s, 2] or hi[nd, 2] < tlo[s, 2]):
+                    continue
+                if child[nd, 0] >= 0:
+                    stack[top], stack[top + 1] = child[nd, 0], child[nd, 1]
+                    top += 2
+                    continue
+                for q in range(first[nd], first[nd] + count[nd]):
+                    g = tris[slot[q]]
+                    if g <= f:
+                        continue
+                    if (tlo[q, 0] > thi[s, 0] or thi[q, 0] < tlo[s, 0] or tlo[q, 1] > thi[s, 1]
+                            or thi[q, 1] < tlo[s, 1] or tlo[q, 2] > thi[s, 2]
+                            or thi[q, 2] < tlo[s, 2]):
+                        continue
+                    j0, j1, j2 = F[g, 0], F[g, 1], F[g, 2]
+                    if (i0 == j0 or i0 == j1 or i0 == j2 or i1 == j0 or i1 == j1 or i1 == j2
+                            or i2 == j0 or i2 == j1 or i2 == j2):
+                        continue
+                    if triangles_intersect(X, i0, i1, i2, j0, j1, j2):
+                        if n < out.shape[0]:
+                            out[n, 0], out[n, 1] = f, g
+                        n += 1
+    return n
+
+
+class SelfIntersections:
+    """Counts the pairs of a surface's triangles that pass through each other.
+
+    Pairs that share a corner are not tested (neighbours meet along their
+    shared edge or corner). A pair whose triangles were more than ``apart``
+    from each other at rest (centre to centre) is skin through skin: two
+    parts of the surface that cross; a nearer one is the surface crumpling
+    over itself, folding a few triangles through their neighbours.
+
+    Parameters
+    ----------
+    V0 : (n, 3) rest surface, F : (m, 3) its triangles, apart : metres.
+    """
+
+    def __init__(self, V0: np.ndarray, F: np.ndarray, apart: float) -> None:
+        self.F = np.ascontiguousarray(F, dtype=np.int64)
+        self.tris = np.arange(len(F), dtype=np.int64)
+        self.tree = triangle_trees(V0, self.F, self.tris, np.zeros(len(F), dtype=np.int64))
+        self.fit = tree_fit(self.tree)
+        self.centre0 = V0[self.F].mean(axis=1)
+        self.apart = float(apart)
+        self._out = np.empty((4096, 2), dtype=np.int64)
+
+    def pairs(self, X: np.ndarray) -> np.ndarray:
+        """(k, 2) the intersecting pairs' face ids in ``X``."""
+        X = np.ascontiguousarray(X, dtype=np.float64)
+        fit_tree(X, self.tree, self.fit, True)
+        t = self.tree
+        lo, hi, tlo, thi, _ = self.fit
+        while True:
+            n = intersecting_pairs(X, self.F, self.tris, t.roots, t.child, t.first, t.count,
+                                   t.slot, lo, hi, tlo, thi, self._out)
+            if n <= len(self._out):
+                return self._out[:n].copy()
+            self._out = np.empty((2 * n, 2), dtype=np.int64)
+
+    def __call__(self, X: np.ndarray) -> tuple[int, int]:
+        """(skin-through-skin pairs, crumpled pairs) in ``X``."""
+        p = self.pairs(X)
+        d = np.linalg.norm(self.centre0[p[:, 0]] - self.centre0[p[:, 1]], axis=1)
+        through = int(np.count_nonzero(d >= self.apart))
+        return through, len(p) - through
