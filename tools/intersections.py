@@ -44,9 +44,7 @@ def main() -> None:
         for q in frames:
             X = pipe.deform(q)
             pairs = count.pairs(X)
-            apart = np.linalg.norm(count.centre0[pairs[:, 0]] - count.centre0[pairs[:, 1]],
-                                   axis=1) >= count.apart
-            through = pairs[apart]
+            through = pairs[count.through(pairs)]
             beyond = int(np.count_nonzero(~in_region[through].any(axis=1)))
             row = (len(through), len(pairs) - len(through), beyond)
             worst = row if worst is None or row[0] > worst[0] else worst

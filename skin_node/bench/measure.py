@@ -31,8 +31,8 @@ Timing
 ``intersections`` / ``crumples``
     Pairs of triangles of the whole surface that pass through each other,
     found exactly (:class:`skin_node.kernels.intersect.SelfIntersections`),
-    independent of the crossing test above: pairs that were more than three
-    median edges apart at rest (skin through skin) / nearer ones (the surface
+    independent of the crossing test above: pairs that were three median
+    edges or more apart at rest (skin through skin) / nearer ones (the surface
     crumpled over itself). Counted on the same frames as ``crossings``.
 ``roughness_mm``
     Mean umbrella-Laplacian length over all joint-region vertices
@@ -65,9 +65,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .. import default_clip_name, load_character, make_clip
+from ..kernels.intersect import SelfIntersections
 from ..metrics import mesh_volume, region_volume
 from ..pipeline import PRESETS, STAGE_NAMES, Pipeline
-from ..kernels.intersect import SelfIntersections
 from ..stages.collision import JointRegions, count_crossings
 
 #: Skinning-only stages: iterations, tets and active_threshold do not change their result.
@@ -505,6 +505,12 @@ def summarize(res: RunResult, times: dict, **extra) -> dict:
     """One summary row of a run: timing percentiles and accuracy extremes."""
     rows = res.rows
     col = lambda k: np.array([r.get(k, np.nan) for r in rows], dtype=float)  # noqa: E731
+
+    def most(k: str) -> float:
+        """The largest of a column measured on some frames only (NaN if on none)."""
+        v = col(k)
+        return float(np.nanmax(v)) if np.isfinite(v).any() else float("nan")
+
     s = {"method": res.method.name, "scene": res.scene.label, "motion": res.motion,
          "frames": len(rows), "stages": "+".join(res.method.stages),
          "params": json.dumps(res.method.param_dict, sort_keys=True),
@@ -525,19 +531,15 @@ def summarize(res: RunResult, times: dict, **extra) -> dict:
         "region_volume_error_max": float(np.nanmax(np.abs(rr - 1.0))),
         "collapse_mm": float(np.nanmin(col("dev_min_mm"))),
         "bulge_mm": float(np.nanmax(col("dev_max_mm"))),
-        "crossings_max": float(np.nanmax(col("crossings"))) if np.isfinite(col("crossings")).any()
-        else float("nan"),
-        "intersections_max": float(np.nanmax(col("intersections")))
-        if np.isfinite(col("intersections")).any() else float("nan"),
-        "crumples_max": float(np.nanmax(col("crumples")))
-        if np.isfinite(col("crumples")).any() else float("nan"),
+        "crossings_max": most("crossings"),
+        "intersections_max": most("intersections"),
+        "crumples_max": most("crumples"),
         "roughness_mm_max": float(np.nanmax(col("roughness_mm"))),
         "inverted_tets_max": float(np.nanmax(col("inverted_tets"))),
         "inverted_skin_tets_max": float(np.nanmax(col("inverted_skin_tets"))),
         "ref_mean_mm": float(np.nanmean(col("ref_mean_mm"))) if np.isfinite(col("ref_mean_mm")).any()
         else float("nan"),
-        "ref_max_mm": float(np.nanmax(col("ref_max_mm"))) if np.isfinite(col("ref_max_mm")).any()
-        else float("nan"),
+        "ref_max_mm": most("ref_max_mm"),
     })
     return s
 

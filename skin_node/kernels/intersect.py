@@ -164,9 +164,13 @@ class SelfIntersections:
                 return self._out[:n].copy()
             self._out = np.empty((2 * n, 2), dtype=np.int64)
 
+    def through(self, pairs: np.ndarray) -> np.ndarray:
+        """(k,) bool: which of ``pairs`` (:meth:`pairs`) are skin through skin."""
+        d = np.linalg.norm(self.centre0[pairs[:, 0]] - self.centre0[pairs[:, 1]], axis=1)
+        return d >= self.apart
+
     def __call__(self, X: np.ndarray) -> tuple[int, int]:
         """(skin-through-skin pairs, crumpled pairs) in ``X``."""
         p = self.pairs(X)
-        d = np.linalg.norm(self.centre0[p[:, 0]] - self.centre0[p[:, 1]], axis=1)
-        through = int(np.count_nonzero(d >= self.apart))
+        through = int(np.count_nonzero(self.through(p)))
         return through, len(p) - through
