@@ -13,12 +13,19 @@ from .collision import fit_tree, tree_fit, triangle_trees
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _plane_side(ax, ay, az, bx, by, bz, cx, cy, cz, px, py, pz):
-    """(b - a) x (c - a) . (p - a): which side of the plane of abc ``p`` is on."""
-    ux, uy, uz = bx - ax, by - ay, bz - az
-    vx, vy, vz = cx - ax, cy - ay, cz - az
-    return ((uy * vz - uz * vy) * (px - ax) + (uz * vx - ux * vz) * (py - ay)
-            + (ux * vy - uy * vx) * (pz - az))
+def _normal(X, i0, i1, i2):
+    """(X[i1] - X[i0]) x (X[i2] - X[i0]): the unnormalised normal of a triangle."""
+    ux, uy, uz = X[i1, 0] - X[i0, 0], X[i1, 1] - X[i0, 1], X[i1, 2] - X[i0, 2]
+    vx, vy, vz = X[i2, 0] - X[i0, 0], X[i2, 1] - X[i0, 1], X[i2, 2] - X[i0, 2]
+    return uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _side(X, n, a, p):
+    """n . (X[p] - X[a]): which side of the plane through ``X[a]`` with normal
+    ``n`` point ``p`` is on."""
+    return (n[0] * (X[p, 0] - X[a, 0]) + n[1] * (X[p, 1] - X[a, 1])
+            + n[2] * (X[p, 2] - X[a, 2]))
 
 
 @nb.njit(cache=True, nogil=True)
@@ -47,32 +54,17 @@ def triangles_intersect(X, i0, i1, i2, j0, j1, j2):
     """Whether triangles ``X[i0, i1, i2]`` and ``X[j0, j1, j2]`` meet (Moller
     1997, "A fast triangle-triangle intersection test"). Coplanar pairs count
     as apart: skin lying flat on skin has not passed through it."""
-    a0 = _plane_side(X[j0, 0], X[j0, 1], X[j0, 2], X[j1, 0], X[j1, 1], X[j1, 2], X[j2, 0],
-                     X[j2, 1], X[j2, 2], X[i0, 0], X[i0, 1], X[i0, 2])
-    a1 = _plane_side(X[j0, 0], X[j0, 1], X[j0, 2], X[j1, 0], X[j1, 1], X[j1, 2], X[j2, 0],
-                     X[j2, 1], X[j2, 2], X[i1, 0], X[i1, 1], X[i1, 2])
-    a2 = _plane_side(X[j0, 0], X[j0, 1], X[j0, 2], X[j1, 0], X[j1, 1], X[j1, 2], X[j2, 0],
-                     X[j2, 1], X[j2, 2], X[i2, 0], X[i2, 1], X[i2, 2])
+    n2 = _normal(X, j0, j1, j2)
+    a0, a1, a2 = _side(X, n2, j0, i0), _side(X, n2, j0, i1), _side(X, n2, j0, i2)
     if (a0 > 0.0 and a1 > 0.0 and a2 > 0.0) or (a0 < 0.0 and a1 < 0.0 and a2 < 0.0):
         return False
     if a0 == 0.0 and a1 == 0.0 and a2 == 0.0:
         return False
-    b0 = _plane_side(X[i0, 0], X[i0, 1], X[i0, 2], X[i1, 0], X[i1, 1], X[i1, 2], X[i2, 0],
-                     X[i2, 1], X[i2, 2], X[j0, 0], X[j0, 1], X[j0, 2])
-    b1 = _plane_side(X[i0, 0], X[i0, 1], X[i0, 2], X[i1, 0], X[i1, 1], X[i1, 2], X[i2, 0],
-                     X[i2, 1], X[i2, 2], X[j1, 0], X[j1, 1], X[j1, 2])
-    b2 = _plane_side(X[i0, 0], X[i0, 1], X[i0, 2], X[i1, 0], X[i1, 1], X[i1, 2], X[i2, 0],
-                     X[i2, 1], X[i2, 2], X[j2, 0], X[j2, 1], X[j2, 2])
+    n1 = _normal(X, i0, i1, i2)
+    b0, b1, b2 = _side(X, n1, i0, j0), _side(X, n1, i0, j1), _side(X, n1, i0, j2)
     if (b0 > 0.0 and b1 > 0.0 and b2 > 0.0) or (b0 < 0.0 and b1 < 0.0 and b2 < 0.0):
         return False
-    # the common line's direction: the cross product of the two normals; project
-    # onto its largest axis
-    ux, uy, uz = X[i1, 0] - X[i0, 0], X[i1, 1] - X[i0, 1], X[i1, 2] - X[i0, 2]
-    vx, vy, vz = X[i2, 0] - X[i0, 0], X[i2, 1] - X[i0, 1], X[i2, 2] - X[i0, 2]
-    n1 = (uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
-    ux, uy, uz = X[j1, 0] - X[j0, 0], X[j1, 1] - X[j0, 1], X[j1, 2] - X[j0, 2]
-    vx, vy, vz = X[j2, 0] - X[j0, 0], X[j2, 1] - X[j0, 1], X[j2, 2] - X[j0, 2]
-    n2 = (uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
+    # the planes' common line runs along n1 x n2: project onto its largest axis
     lx = abs(n1[1] * n2[2] - n1[2] * n2[1])
     ly = abs(n1[2] * n2[0] - n1[0] * n2[2])
     lz = abs(n1[0] * n2[1] - n1[1] * n2[0])

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numba as nb
 import numpy as np
 
@@ -457,7 +456,7 @@ class Volume(Stage):
                              np.ascontiguousarray(fr.M), regs.tri_bone, regs.tri_normal, tree,
                              fit, refit, regs.verts[j], regs.vside[j], posed[0], posed[1],
                              *regs.test_limits(j), hint, regs.edge, regs.emax,
-                             numba.get_num_threads())
+                             nb.get_num_threads())
 
     def _whole(self, fr: Frame, js, posed, slack: float = 0.0) -> None:
         """One constraint on the whole mesh's volume, moving the bent joints' zones;
