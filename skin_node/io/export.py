@@ -224,25 +224,17 @@ def read_gltf_morph(path: str | Path) -> tuple[np.ndarray, np.ndarray, float]:
 
 # --------------------------------------------------------------------- bags
 def read_bag_points(path: str | Path, topic: str = "skin/points") -> tuple[np.ndarray, float]:
-    """(frames (T, n, 3), fps) of the PointCloud2 messages of a rosbag2 bag.
+    """(frames (T, n, 3), fps) of the PointCloud2 messages of a bag (rosbag2 or
+    ROS 1, :class:`~skin_node.io.bags.BagReader`).
 
     The rate is the median rate of the messages' log times.
     """
-    from rosbags.highlevel import AnyReader
-    path = Path(path)
-    if not path.exists():
-        raise ValueError(f"{path}: no such bag")
+    from .bags import BagReader
+    cloud = "sensor_msgs/msg/PointCloud2"
     out, stamps = [], []
-    with AnyReader([path]) as reader:
-        conns = [c for c in reader.connections
-                 if c.topic.lstrip("/") == topic.lstrip("/")
-                 and c.msgtype == "sensor_msgs/msg/PointCloud2"]
-        if not conns:
-            found = sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})
-            raise ValueError(f"{path}: no sensor_msgs/msg/PointCloud2 topic {topic}; "
-                             f"it holds {found}")
-        for conn, t, raw in reader.messages(connections=conns):
-            msg = reader.deserialize(raw, conn.msgtype)
+    with BagReader(path) as reader:
+        for _, t, raw in reader.messages(cloud, topic):
+            msg = reader.deserialize(raw, cloud)
             off = {f.name: f.offset for f in msg.fields}
             if not {"x", "y", "z"} <= set(off) or msg.is_bigendian:
                 raise ValueError(f"{path}: {topic} messages need little-endian x, y, z fields")
@@ -252,6 +244,9 @@ def read_bag_points(path: str | Path, topic: str = "skin/points") -> tuple[np.nd
                             for k in "xyz"], axis=1)
             out.append(xyz.astype(np.float64))
             stamps.append(t)
+        if not out and not any(m == cloud and t.lstrip("/") == topic.lstrip("/")
+                               for t, m in reader.connections):
+            raise ValueError(f"{path}: no {cloud} topic {topic}; it holds {reader.describe()}")
     if not out:
         raise ValueError(f"{path}: no messages on {topic}")
     if len({len(x) for x in out}) != 1:
