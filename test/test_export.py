@@ -76,7 +76,7 @@ def test_cli_exports_a_gltf_characters_own_clip(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("SKIN_NODE_CACHE", str(tmp_path / "cache"))
     path = rigged("RiggedFigure.glb")
     usd, glb = tmp_path / "fig.usdc", tmp_path / "fig.glb"
-    assert main(["--character", str(path), "--clip", "file", "--weights", "file",
+    assert main(["--character", str(path), "--clip", "file", "--fps", "30", "--weights", "file",
                  "--pipeline", "lbs", "--step", "3", "--frames", "6",
                  "-o", str(usd), "-o", str(glb)]) == 0
     assert "6 frames of 370 points" in capsys.readouterr().out

@@ -241,6 +241,43 @@ def test_a_ros1_bag_replays_like_a_rosbag2_one(tmp_path):
            "(no_known_names 3); no name (caster_wheel) is a channel" in out, out
 
 
+def test_a_gltf_characters_own_clip_through_the_node(tmp_path):
+    """A glTF file's animation (cubic, step and linear tracks) named by mocap_player,
+    replayed as joint states through the node: each pose's skin is the pipeline's."""
+    from test_gltf_clips import write_animated_glb
+    from skin_node.motion import load_motion
+    glb = write_animated_glb(tmp_path / "leg.glb")
+    res = subprocess.run(_command("mocap_player", "skin_node.player")
+                         + ["--character", str(glb), "--list-clips"],
+                         env=_env(), cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0 and res.stdout.split() == ["walk", "animation1"], res.stderr
+    clip = load_motion(str(glb), "walk", fps=30.0)
+    t0, dt = 1_700_000_000 * 10**9, 10**9 // 30
+    stream = [(t0 + k * dt, joint_state(t0 + k * dt, clip.channel_names, q))
+              for k, q in enumerate(clip.frames)]
+    write_bag(tmp_path / "in", "mcap", stream)
+    with running_node(tmp_path, "-p", f"character:={glb}", "-p", "weights:=file") \
+            as (proc, env, log):
+        play_and_record(env, tmp_path / "in", tmp_path / "out", "--lockstep", "5")
+        res = subprocess.run(
+            _command("mocap_player", "skin_node.player") + [
+                "--character", str(glb), "--clip", "walk", "--fps", "30", "--frames", "20"],
+            env=env, cwd=REPO, capture_output=True, text=True, timeout=120)
+        assert res.returncode == 0, res.stderr
+        assert "playing 'walk': 31 frames at 30.0 Hz" in res.stderr
+        assert "sent 20 frames" in res.stderr
+    clouds, diag = read_outputs(tmp_path / "out")
+    assert [stamp_ns(c) for c in clouds] == [t for t, _ in stream]
+    pipe = skin_node.Pipeline(skin_node.load_character(str(glb), weights="file",
+                                                       progress=False))
+    moved = 0.0
+    for c, q in zip(clouds, clip.frames):
+        X = point_cloud2_to_vertices(c)
+        assert np.abs(X - pipe.deform(q)).max() < 1e-6
+        moved = max(moved, float(np.abs(X - pipe.character.V).max()))
+    assert moved > 0.3                  # the walk moves the leg, root and all
+
+
 def test_burst_processes_newest_and_counts_stale(tmp_path):
     stream, valid, _ = arm_stream(n_valid=60, hz=2000.0, with_bad=False)
     write_bag(tmp_path / "in", "mcap", stream)

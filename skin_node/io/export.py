@@ -24,8 +24,10 @@ Command line (``python -m skin_node.io.export``)::
     python -m skin_node.io.export --character humanoid --clip walk -o walk.usda
     python -m skin_node.io.export --character humanoid --bag recorded_bag -o rec.glb
 
-The clip is a built-in one (``--clip NAME``), the glTF file's own animation
-(``--clip file``), a BVH retargeted through ``--mapping`` (default
+The clip is a built-in one (``--clip NAME``), a glTF character's own animation
+(``--clip NAME`` or ``gltf:NAME``, ``--clip file`` for the first, which is also
+the default; sampled at ``--fps``, 120 by default), a BVH retargeted through
+``--mapping`` (default
 ``config/cmu_to_<character name>.yaml``), or the ``skin/points`` messages of a
 recorded rosbag2 bag (``--bag``; no deformation is run, the points are the
 recorded ones, in the character's vertex order).
@@ -264,25 +266,11 @@ def deform_clip(character, frames: np.ndarray, pipeline: str = "default",
     return np.stack([pipe.deform(q) for q in frames])
 
 
-def _config(name: str) -> Path:
-    return Path(__file__).resolve().parents[2] / "config" / name
-
-
 def _load_motion(args, ch) -> tuple[str, np.ndarray, float]:
-    skel = ch.skeleton
-    if args.bvh:
-        from ..retarget import load_mapping, retarget_bvh
-        from .bvh import load_bvh
-        src = load_bvh(args.bvh)
-        mapping = args.mapping or _config(f"cmu_to_{Path(args.character).stem.lower()}.yaml")
-        _, q, fps = retarget_bvh(src, skel, load_mapping(mapping, skel, src))
-        return Path(args.bvh).stem, q, fps
-    if args.clip == "file":
-        from .gltf import load_gltf
-        c = load_gltf(args.character).clip(fps=args.fps or 30.0)
-        return c.name, c.frames, c.fps
-    from ..builtin.clips import default_clip_name, make_clip
-    c = make_clip(args.clip or default_clip_name(ch.name), skel)
+    from ..motion import GLTF_PREFIX, load_motion
+    clip = f"{GLTF_PREFIX}0" if args.clip == "file" else args.clip
+    c = load_motion(args.character, clip, args.bvh, args.mapping, args.fps or None,
+                    skeleton=ch.skeleton)
     return c.name, np.asarray(c.frames), float(c.fps)
 
 
@@ -292,8 +280,8 @@ def _parse(argv):
     ap.add_argument("--character", required=True, help="arm | humanoid | character file")
     ap.add_argument("--weights", default="automatic", choices=("automatic", "file"))
     src = ap.add_mutually_exclusive_group()
-    src.add_argument("--clip", default="", help="built-in clip name, or 'file' for the "
-                     "glTF character's own animation")
+    src.add_argument("--clip", default="", help="built-in clip, or a glTF character's "
+                     "animation (NAME, gltf:NAME; 'file' for its first)")
     src.add_argument("--bvh", default="", help="BVH file to retarget")
     src.add_argument("--bag", default="", help="rosbag2 bag with recorded skin/points")
     ap.add_argument("--mapping", default="", help="retarget mapping YAML for --bvh")
@@ -301,7 +289,8 @@ def _parse(argv):
     ap.add_argument("--pipeline", default="default", help="preset: lbs, dqs, paper, default")
     ap.add_argument("--step", type=int, default=1, help="keep every N-th frame")
     ap.add_argument("--frames", type=int, default=0, help="stop after N frames (0: all)")
-    ap.add_argument("--fps", type=float, default=0.0, help="sampling rate of --clip file")
+    ap.add_argument("--fps", type=float, default=0.0,
+                    help="sampling rate of a glTF animation (default 120)")
     ap.add_argument("-o", "--output", action="append", required=True,
                     help=".usda/.usdc/.usd and/or .glb (repeatable)")
     return ap.parse_args(argv)
