@@ -17,11 +17,14 @@ Instead of ``joints``, ``template: humanoid`` (or ``quadruped``, or a template
 YAML path) embeds that template skeleton in the mesh automatically
 (:mod:`skin_node.rigging.embed`); optional ``up:`` / ``forward:`` (``y``,
 ``-z``, ...) say how the mesh is oriented when detection would get it wrong.
+The fit is checked; its figures are printed in one line at start-up, and a fit
+that fails its checks is refused with the check and the hint that would help.
 Errors name the file and say what is wrong with it: a bad mesh names the mesh
 file first, then the character file that named it.
 """
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -38,8 +41,12 @@ def _fail(path: Path, msg: str):
     raise CharacterFileError(f"{path}: {msg}")
 
 
-def load_character_file(path: Path):
+def load_character_file(path: Path, verbose: bool = True):
     """Read a character file.
+
+    With ``template:``, the embedded skeleton's checks and their figures are
+    printed to stderr in one line (``verbose``), and a fit that fails them is
+    refused (:mod:`skin_node.rigging.embed`).
 
     Returns
     -------
@@ -80,7 +87,7 @@ def load_character_file(path: Path):
             check_surface(mesh_path, V, F)
         except CharacterFileError as e:
             raise CharacterFileError(f"{e} (the mesh of {path})") from None
-    return V, F, _skeleton(path, doc, scale, V, F)
+    return V, F, _skeleton(path, doc, scale, V, F, verbose)
 
 
 def _mesh(path: Path, doc: dict):
@@ -146,15 +153,21 @@ def check_surface(path, V: np.ndarray, F: np.ndarray) -> None:
                     "to face outwards")
 
 
-def _skeleton(path: Path, doc: dict, scale: float, V=None, F=None) -> Skeleton:
+def _skeleton(path: Path, doc: dict, scale: float, V=None, F=None,
+              verbose: bool = True) -> Skeleton:
     if "template" in doc and "joints" not in doc and V is not None:
         # No hand-placed joints: embed a template skeleton in the (scaled) mesh.
-        from ..rigging.embed import embed_skeleton
+        from ..rigging.embed import fit_template
         try:
-            return embed_skeleton(V, F, str(doc["template"]), up=doc.get("up"),
-                                  forward=doc.get("forward"))
+            emb = fit_template(V, F, str(doc["template"]), up=doc.get("up"),
+                               forward=doc.get("forward"))
         except ValueError as e:
             _fail(path, f"template '{doc['template']}': {e}")
+        if not emb.passed:
+            _fail(path, emb.failure())
+        if verbose:
+            print(f"[skin_node] {path}: {emb.summary()}", file=sys.stderr, flush=True)
+        return emb.skeleton
     joints = doc.get("joints")
     if not isinstance(joints, list) or not joints:
         _fail(path, "needs a non-empty 'joints' list")
