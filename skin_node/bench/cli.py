@@ -8,6 +8,7 @@ Subcommands (``run`` is the default when the first argument is an option)::
     skin_bench run --scenes CesiumMan.glb --clips gltf:animation0   # a file's own clip
     skin_bench stability --pipelines lbs,default --long-frames 100000
     skin_bench memory --scene humanoid:24000 --frames 3000
+    skin_bench export-memory --frames 1000   # the streaming exporter's peak RSS
     skin_bench ablation --scenes humanoid:24000 --clips walk,squat   # each part's worth
     skin_bench ros-latency --seconds 10
     skin_bench report            # everything, into bench_results/, prints a markdown table
@@ -485,6 +486,17 @@ def _parser() -> argparse.ArgumentParser:
     m.add_argument("--print-json", action="store_true", help=argparse.SUPPRESS)
     common(m)
 
+    e = sub.add_parser("export-memory", help="peak RSS of the streaming exporter against "
+                                             "the pipeline alone")
+    e.add_argument("--character", default="humanoid")
+    e.add_argument("--frames", type=int, default=1000)
+    e.add_argument("--bvh", default=None,
+                   help="BVH take to retarget (default: CMU 01_01 from the shared data)")
+    e.add_argument("--clip", default="", help="a clip instead of a BVH take")
+    e.add_argument("--outputs", default="glb,usdc", help="suffixes to write at once")
+    e.add_argument("--keep", action="store_true", help="keep the exported files in --out")
+    common(e)
+
     b = sub.add_parser("ablation", help="the default pipeline with each part left out: "
                                         "time against accuracy")
     b.add_argument("--scenes", default="humanoid:24000")
@@ -543,6 +555,13 @@ def main(argv: list | None = None) -> int:
                 mem = run_memory(a.scene, a.frames, a.every, a.out, progress=prog)
             print(memory_line(mem))
             return 0 if mem["flat"] else 1
+        elif a.cmd == "export-memory":
+            from .export_memory import export_memory_line, run_export_memory
+            res = run_export_memory(a.character, a.frames, a.bvh, a.clip, _list(a.outputs),
+                                    a.out, a.keep)
+            print(export_memory_line(res))
+            for line in res["lines"]:
+                print("  " + line)
         elif a.cmd == "report":
             print(report(a.out, quick=a.quick, ros=not a.no_ros, progress=prog))
     except ValueError as e:

@@ -117,14 +117,33 @@ class _Reader:
             self._buffers[i] = bytes(data)
         return self._buffers[i]
 
+    def _view(self, view: int, offset: int, dt, width: int, count: int, what: str,
+              strided: bool = True) -> np.ndarray:
+        """(count, width) elements of ``dt`` from buffer view ``view`` at ``offset``."""
+        g = self.g
+        if not 0 <= view < len(g.bufferViews):
+            _fail(self.path, f"{what}: buffer view {view} does not exist")
+        bv = g.bufferViews[view]
+        data = self.buffer(bv.buffer)
+        start = (bv.byteOffset or 0) + (offset or 0)
+        item = np.dtype(dt).itemsize * width
+        stride = (bv.byteStride or item) if strided else item
+        need = start + (count - 1) * stride + item if count else start
+        if need > len(data) or need > (bv.byteOffset or 0) + bv.byteLength:
+            _fail(self.path, f"{what}: data runs past the end of buffer view {view}")
+        raw = np.frombuffer(data, dtype=np.uint8, count=max(need - start, 0), offset=start)
+        if stride == item:
+            return raw[:count * item].view(dt).reshape(count, width)
+        rows = np.lib.stride_tricks.as_strided(raw, (count, item), (stride, 1))
+        return np.ascontiguousarray(rows).view(dt).reshape(count, width)
+
     def read(self, index: int | None, what: str) -> np.ndarray:
-        """Accessor ``index`` as a float64 or int64 array of shape (count, width)."""
+        """Accessor ``index`` as a float64 or int64 array of shape (count, width),
+        sparse substitution applied and normalised integers mapped to [-1, 1]."""
         g = self.g
         if index is None or not 0 <= index < len(g.accessors):
             _fail(self.path, f"{what}: accessor {index} does not exist")
         acc = g.accessors[index]
-        if acc.sparse is not None:
-            _fail(self.path, f"{what}: sparse accessors are not supported")
         dt = _COMPONENTS.get(acc.componentType)
         width = _WIDTH.get(acc.type)
         if dt is None or width is None:
@@ -133,24 +152,24 @@ class _Reader:
         if acc.bufferView is None:
             out = np.zeros((count, width), dtype=dt)
         else:
-            bv = g.bufferViews[acc.bufferView]
-            data = self.buffer(bv.buffer)
-            start = (bv.byteOffset or 0) + (acc.byteOffset or 0)
-            item = np.dtype(dt).itemsize * width
-            stride = bv.byteStride or item
-            need = start + (count - 1) * stride + item if count else start
-            if need > len(data) or need > (bv.byteOffset or 0) + bv.byteLength:
-                _fail(self.path, f"{what}: accessor {index} runs past the end of its buffer")
-            raw = np.frombuffer(data, dtype=np.uint8, count=max(need - start, 0), offset=start)
-            if stride == item:
-                out = raw[:count * item].view(dt).reshape(count, width)
-            else:
-                rows = np.lib.stride_tricks.as_strided(raw, (count, item), (stride, 1))
-                out = np.ascontiguousarray(rows).view(dt).reshape(count, width)
+            out = self._view(acc.bufferView, acc.byteOffset, dt, width, count, what).copy()
+        if acc.sparse is not None:
+            sp = acc.sparse
+            idt = _COMPONENTS.get(sp.indices.componentType)
+            if idt not in (np.uint8, np.uint16, np.uint32):
+                _fail(self.path, f"{what}: sparse indices of type {sp.indices.componentType}")
+            n = int(sp.count)
+            where = self._view(sp.indices.bufferView, sp.indices.byteOffset, idt, 1, n,
+                               what, strided=False).ravel().astype(np.int64)
+            if n and (where.min() < 0 or where.max() >= count or np.any(np.diff(where) <= 0)):
+                _fail(self.path, f"{what}: sparse indices must increase within 0..{count - 1}")
+            out[where] = self._view(sp.values.bufferView, sp.values.byteOffset, dt, width, n,
+                                    what, strided=False)
         if dt == np.float32:
             return out.astype(np.float64)
         if acc.normalized:
-            return out.astype(np.float64) / float(np.iinfo(dt).max)
+            x = out.astype(np.float64) / float(np.iinfo(dt).max)
+            return np.maximum(x, -1.0) if np.issubdtype(dt, np.signedinteger) else x
         return out.astype(np.int64)
 
 
