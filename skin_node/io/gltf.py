@@ -58,6 +58,11 @@ The file is parsed with ``pygltflib`` (structure) and decoded with numpy
   :attr:`GltfClip.ignored_translation` (3 mm on CesiumMan's walk, under
   0.003 mm on RiggedFigure and RiggedSimple).
 
+:func:`load_gltf_scene` reads every mesh of the scene instead (skinned meshes
+on any number of skins joined into one skeleton, meshes without a skin as
+rigid parts of the joint above them, each part reported with its vertex count,
+open or closed); it is not yet what :func:`~skin_node.load_character` uses.
+
 Errors are :class:`~skin_node.io.character_file.CharacterFileError`
 (a ``ValueError``) whose message starts with the file path.
 """
@@ -403,6 +408,59 @@ def _merge_by_position(V: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarra
     return vmap, Vm
 
 
+def _mesh_primitives(path: Path, rd: _Reader, g, node: int, skinned: bool):
+    """(positions (p, 3), triangles (t, 3), joints (p, k) or None, weights (p, k) or
+    None) of every triangle primitive of node ``node``'s mesh; with ``skinned``
+    each must have JOINTS_0/WEIGHTS_0 (and any further sets)."""
+    mi = g.nodes[node].mesh
+    if not 0 <= mi < len(g.meshes):
+        _fail(path, f"node {node} refers to mesh {mi}, which does not exist")
+    for pk, prim in enumerate(g.meshes[mi].primitives):
+        where = f"mesh {mi} primitive {pk}"
+        if prim.mode not in (None, 4):
+            _fail(path, f"{where} has mode {prim.mode}; only triangles (mode 4) are supported")
+        at = prim.attributes
+        if at.POSITION is None:
+            _fail(path, f"{where} has no POSITION")
+        P = rd.read(at.POSITION, f"{where} POSITION")
+        if P.shape[1] != 3:
+            _fail(path, f"{where} POSITION is not VEC3")
+        idx = rd.read(prim.indices, f"{where} indices").ravel() if prim.indices is not None \
+            else np.arange(len(P))
+        if len(idx) % 3:
+            _fail(path, f"{where}: {len(idx)} indices is not a multiple of 3")
+        if len(idx) and (idx.min() < 0 or idx.max() >= len(P)):
+            _fail(path, f"{where}: indices reach vertex {idx.max()} of {len(P)}")
+        if not skinned:
+            yield P, idx.reshape(-1, 3), None, None
+            continue
+        sets = []
+        for k in range(4):
+            ja, wa = getattr(at, f"JOINTS_{k}", None), getattr(at, f"WEIGHTS_{k}", None)
+            if ja is None and wa is None:
+                continue
+            if ja is None or wa is None:
+                _fail(path, f"{where} has JOINTS_{k} without WEIGHTS_{k} or the reverse")
+            sets.append((rd.read(ja, f"{where} JOINTS_{k}"),
+                         rd.read(wa, f"{where} WEIGHTS_{k}").astype(np.float64)))
+        if not sets:
+            _fail(path, f"{where} has no JOINTS_0/WEIGHTS_0: the mesh is not skinned")
+        ji = np.concatenate([a for a, _ in sets], axis=1)
+        wv = np.concatenate([b for _, b in sets], axis=1)
+        if ji.shape != wv.shape or len(ji) != len(P):
+            _fail(path, f"{where}: JOINTS/WEIGHTS do not match POSITION in size")
+        yield P, idx.reshape(-1, 3), ji, wv
+
+
+def _open(path) -> tuple:
+    """(path, document, reader, parent node of every node) of a glTF file with nodes."""
+    path = Path(path)
+    g = _read_document(path)
+    if not g.nodes:
+        _fail(path, "has no nodes (no mesh and no skeleton)")
+    return path, g, _Reader(path, g), _parents_of_nodes(path, g)
+
+
 def load_gltf(path: str | Path) -> GltfCharacter:
     """Read a skinned glTF 2.0 character.
 
@@ -424,12 +482,7 @@ def load_gltf(path: str | Path) -> GltfCharacter:
         coordinates, or a surface that is open, non-manifold or inside out
         even after merging seam vertices.
     """
-    path = Path(path)
-    g = _read_document(path)
-    rd = _Reader(path, g)
-    if not g.nodes:
-        _fail(path, "has no nodes (no mesh and no skeleton)")
-    parent = _parents_of_nodes(path, g)
+    path, g, rd, parent = _open(path)
     if not g.skins:
         _fail(path, "has no skin: a skinned mesh with JOINTS_0/WEIGHTS_0 is needed")
     mesh_nodes = [i for i, n in enumerate(g.nodes) if n.mesh is not None and n.skin == 0]
@@ -517,43 +570,9 @@ def load_gltf(path: str | Path) -> GltfCharacter:
     Vf, Ff, Jidx, Jw = [], [], [], []
     nv = 0
     for mi in mesh_nodes:
-        mesh = g.meshes[g.nodes[mi].mesh] if 0 <= g.nodes[mi].mesh < len(g.meshes) else None
-        if mesh is None:
-            _fail(path, f"node {mi} refers to mesh {g.nodes[mi].mesh}, which does not exist")
-        for pk, prim in enumerate(mesh.primitives):
-            if prim.mode not in (None, 4):
-                _fail(path, f"mesh {g.nodes[mi].mesh} primitive {pk} has mode {prim.mode}; "
-                            "only triangles (mode 4) are supported")
-            at = prim.attributes
-            where = f"mesh {g.nodes[mi].mesh} primitive {pk}"
-            if at.POSITION is None:
-                _fail(path, f"{where} has no POSITION")
-            P = rd.read(at.POSITION, f"{where} POSITION")
-            if P.shape[1] != 3:
-                _fail(path, f"{where} POSITION is not VEC3")
-            idx = rd.read(prim.indices, f"{where} indices").ravel() if prim.indices is not None \
-                else np.arange(len(P))
-            if len(idx) % 3:
-                _fail(path, f"{where}: {len(idx)} indices is not a multiple of 3")
-            if len(idx) and (idx.min() < 0 or idx.max() >= len(P)):
-                _fail(path, f"{where}: indices reach vertex {idx.max()} of {len(P)}")
-            sets = []
-            for s in range(4):
-                ja, wa = getattr(at, f"JOINTS_{s}", None), getattr(at, f"WEIGHTS_{s}", None)
-                if ja is None and wa is None:
-                    continue
-                if ja is None or wa is None:
-                    _fail(path, f"{where} has JOINTS_{s} without WEIGHTS_{s} or the reverse")
-                sets.append((rd.read(ja, f"{where} JOINTS_{s}"),
-                             rd.read(wa, f"{where} WEIGHTS_{s}").astype(np.float64)))
-            if not sets:
-                _fail(path, f"{where} has no JOINTS_0/WEIGHTS_0: the mesh is not skinned")
-            ji = np.concatenate([a for a, _ in sets], axis=1)
-            wv = np.concatenate([b for _, b in sets], axis=1)
-            if ji.shape != wv.shape or len(ji) != len(P):
-                _fail(path, f"{where}: JOINTS/WEIGHTS do not match POSITION in size")
+        for P, tri, ji, wv in _mesh_primitives(path, rd, g, mi, skinned=True):
             Vf.append(P)
-            Ff.append(idx.reshape(-1, 3) + nv)
+            Ff.append(tri + nv)
             Jidx.append(ji)
             Jw.append(wv)
             nv += len(P)
@@ -808,3 +827,353 @@ def _topological(parent: np.ndarray) -> list:
             seen[k] = True
             order.append(k)
     return order
+
+
+# ------------------------------------------------------- whole scenes (parts)
+@dataclass
+class GltfPart:
+    """One mesh of a glTF scene as a part of the character (:func:`load_gltf_scene`).
+
+    Attributes
+    ----------
+    name : str
+        The mesh node's name (``node<k>`` when it has none).
+    node, mesh : int
+        glTF node and mesh index.
+    kind : str
+        ``"skinned"`` (bound to a skin's joints) or ``"rigid"`` (carried whole
+        by one joint, or ``"static"`` when no joint is above it).
+    V : (n, 3) float
+        Rest surface in the project's world (metres, z up), merged by position.
+    F : (m, 3) int
+    vertex_map : (n_file,) int
+        Merged index of every file vertex of the part.
+    open_edges : int
+        Edges with one triangle (0: closed); ``closed`` says the same.
+    skin : int or None
+        The skin of a skinned part.
+    Widx, Wval : (n, k) int, float or None
+        A skinned part's file weights, skeleton joint indices, rows summing to 1.
+    joint : int
+        The skeleton joint a rigid part follows (-1: static).
+    local : (4, 4) float or None
+        A rigid part's mesh frame in its joint's bind frame: posed points are
+        ``G_joint @ local @ p_mesh``.
+    """
+
+    name: str
+    node: int
+    mesh: int
+    kind: str
+    V: np.ndarray
+    F: np.ndarray
+    vertex_map: np.ndarray
+    open_edges: int
+    skin: int | None = None
+    Widx: np.ndarray | None = None
+    Wval: np.ndarray | None = None
+    joint: int = -1
+    local: np.ndarray | None = None
+
+    @property
+    def closed(self) -> bool:
+        return self.open_edges == 0
+
+    @property
+    def n_file_vertices(self) -> int:
+        return len(self.vertex_map)
+
+
+@dataclass
+class GltfScene:
+    """Every mesh of a glTF scene on one skeleton (:func:`load_gltf_scene`).
+
+    Attributes
+    ----------
+    path : Path
+    skeleton : Skeleton
+        The joints of every skin, joined (a joint two skins share is one
+        joint), under one root; ``q = 0`` is the bind pose.
+    joint_nodes : (J,) int
+        glTF node of every skeleton joint.
+    parts : list of GltfPart
+    warnings : list of str
+        Disagreements kept rather than refused (a joint two skins bind
+        differently: the first skin's bind is used).
+    """
+
+    path: Path
+    skeleton: Skeleton
+    joint_nodes: np.ndarray
+    parts: list
+    warnings: list = field(default_factory=list)
+    _gltf: object = field(default=None, repr=False)
+
+    @property
+    def animation_names(self) -> list:
+        return _animation_names(self._gltf)
+
+    def clip(self, which: int | str = 0, fps: float = 30.0) -> GltfClip:
+        """:func:`gltf_clip` of the joined skeleton."""
+        return gltf_clip(self, which, fps)
+
+    def posed(self, q: np.ndarray) -> list:
+        """(n, 3) points of every part under pose ``q``: skinned parts by linear
+        blend skinning with the file's weights, rigid ones by their joint."""
+        M = self.skeleton.skinning_matrices(q)
+        out = []
+        for p in self.parts:
+            Vh = np.c_[p.V, np.ones(len(p.V))]
+            if p.kind == "skinned":
+                X = np.einsum("nk,nkij,nj->ni", p.Wval, M[p.Widx], Vh)[:, :3]
+            elif p.joint >= 0:
+                X = Vh @ M[p.joint].T[:, :3]
+            else:
+                X = p.V.copy()
+            out.append(X)
+        return out
+
+    def report(self) -> list:
+        """One line per part: vertices, closed or open, skinned or rigid (and on what)."""
+        names = self.skeleton.names
+        lines = []
+        for p in self.parts:
+            on = (f"skinned on skin {p.skin}" if p.kind == "skinned" else
+                  f"rigid on joint '{names[p.joint]}'" if p.kind == "rigid" else
+                  "static (no joint above it)")
+            shape = "closed" if p.closed else f"open ({p.open_edges} edges with one triangle)"
+            lines.append(f"part '{p.name}' (node {p.node}, mesh {p.mesh}): {on}, {len(p.V)} "
+                         f"vertices ({p.n_file_vertices} in the file), {len(p.F)} triangles, "
+                         f"{shape}")
+        return lines
+
+
+def _open_edges(F: np.ndarray) -> int:
+    E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(E, axis=0, return_counts=True)
+    return int((counts == 1).sum())
+
+
+def _scene_nodes(g) -> list:
+    """Nodes of the default scene (all nodes when the file has no scene)."""
+    if not g.scenes:
+        return list(range(len(g.nodes)))
+    out, todo = [], list(g.scenes[g.scene or 0].nodes or [])
+    while todo:
+        i = todo.pop()
+        out.append(i)
+        todo.extend(g.nodes[i].children or [])
+    return sorted(out)
+
+
+def load_gltf_scene(path: str | Path) -> GltfScene:
+    """Every mesh of a glTF file's scene, on one skeleton.
+
+    * **Skinned meshes** on any number of skins: the skins' joints are joined
+      into one skeleton (a joint's parent is its nearest ancestor node that is
+      a joint of any skin; several trees are joined under their nearest common
+      ancestor node, which becomes the root). A joint's bind pose comes from
+      the inverse bind matrices of the first skin that lists it (another
+      skin's differing by more than 0.1 mm or 1e-3 rad is reported in
+      :attr:`GltfScene.warnings`); a joint no skin lists (the common
+      ancestor), from the node hierarchy's rest pose. Each part's vertices are
+      in its skin's space, as :func:`load_gltf` takes them.
+    * **Meshes without a skin** are rigid parts of the joint nearest above
+      their node (the node itself when it is a joint), with their mesh frame
+      in that joint's bind frame (an animation of non-joint nodes between the
+      two is not followed); with no joint above them they are static. Without
+      any skin (a robot of rigid links), the mesh nodes and every node above
+      them are the joints, each link following its own node.
+    * Each part is merged by position on its own and reported open or closed;
+      nothing is refused for being open (that is for the caller to decide).
+
+    Raises
+    ------
+    CharacterFileError
+        ``"<path>: <problem>"`` for an unreadable file, a broken node
+        hierarchy, no mesh in the scene, joints with no common ancestor, bad
+        primitives, weights or non-uniformly scaled joints.
+    """
+    path, g, rd, parent = _open(path)
+    in_scene = _scene_nodes(g)
+    mesh_nodes = [i for i in in_scene if g.nodes[i].mesh is not None]
+    if not mesh_nodes:
+        _fail(path, "its scene has no mesh")
+    skins = sorted({g.nodes[i].skin for i in mesh_nodes if g.nodes[i].skin is not None})
+    for s in skins:
+        if not 0 <= s < len(g.skins or []) or not g.skins[s].joints:
+            _fail(path, f"skin {s} does not exist or has no joints")
+    joints = []
+    for s in skins:
+        joints += [int(j) for j in g.skins[s].joints if int(j) not in joints]
+    if not skins:            # rigid links only: the mesh nodes and those above are joints
+        for i in mesh_nodes:
+            a = i
+            while a >= 0:
+                if a not in joints:
+                    joints.append(int(a))
+                a = parent[a]
+    if not joints:
+        _fail(path, "no skin and no node above its meshes: nothing to pose")
+    bad = [j for j in joints if not 0 <= j < len(g.nodes)]
+    if bad:
+        _fail(path, f"skins list joints {bad} that are not nodes of the file")
+
+    def ancestors(i):
+        out = []
+        while i >= 0:
+            out.append(int(i))
+            i = parent[i]
+        return out
+
+    def joint_parent(n):
+        a = parent[n]
+        while a >= 0 and a not in joints:
+            a = parent[a]
+        return int(a)
+
+    roots = [j for j in joints if joint_parent(j) < 0]
+    if len(roots) > 1:      # join the trees under their nearest common ancestor node
+        common = set(ancestors(roots[0]))
+        for r in roots[1:]:
+            common &= set(ancestors(r))
+        if not common:
+            _fail(path, f"the joints form {len(roots)} trees (roots: nodes {roots}) with no "
+                        "common ancestor node; one skeleton needs one root")
+        joints.append(max(common, key=lambda a: len(ancestors(a))))
+    root = next(j for j in joints if joint_parent(j) < 0)
+    order = [root]
+    for j in order:             # breadth first: parents before children
+        order.extend(k for k in joints if joint_parent(k) == j)
+    index = {n: k for k, n in enumerate(order)}
+    parents = np.array([-1 if joint_parent(n) < 0 else index[joint_parent(n)] for n in order])
+    # Names as load_gltf gives them: an unnamed joint is joint<k>, k its index in
+    # the (first) skin listing it, as in JOINTS_0; other nodes node<n>.
+    in_skin = {}
+    for s in skins:
+        for k, n in enumerate(g.skins[s].joints):
+            in_skin.setdefault(int(n), k)
+    names, used = [], set()
+    for n in order:
+        k = in_skin.get(n, n)
+        nm = g.nodes[n].name or (f"joint{k}" if n in in_skin else f"node{n}")
+        nm = nm if nm not in used else f"{nm}_{k}"
+        used.add(nm)
+        names.append(nm)
+
+    # ---- bind pose: the first skin's IBMs, else the node's rest
+    Wn = _world_matrices(g, parent)
+    Cz = np.eye(4)
+    Cz[:3, :3] = Y_UP_TO_Z_UP
+    J = len(order)
+    B = np.array([Cz @ Wn[n] for n in order])
+    bound = np.zeros(J, dtype=bool)
+    skin_space, warn = {}, []
+    for s in skins:
+        sj = [int(j) for j in g.skins[s].joints]
+        if g.skins[s].inverseBindMatrices is not None:
+            IBM = rd.read(g.skins[s].inverseBindMatrices, f"skin {s} inverseBindMatrices")
+            if IBM.shape != (len(sj), 16):
+                _fail(path, f"skin {s}: {len(IBM)} inverse bind matrices for {len(sj)} joints")
+            IBM = IBM.reshape(-1, 4, 4).transpose(0, 2, 1)
+        else:
+            IBM = np.tile(np.eye(4), (len(sj), 1, 1))
+        if not np.all(np.isfinite(IBM)):
+            _fail(path, f"skin {s}: inverse bind matrices contain NaN or Inf")
+        top = next(j for j in sj if all(a not in sj for a in ancestors(j)[1:]))
+        to_world = Cz @ (Wn[parent[top]] if parent[top] >= 0 else np.eye(4))
+        skin_space[s] = to_world
+        try:
+            Bs = to_world @ np.linalg.inv(IBM)
+        except np.linalg.LinAlgError:
+            _fail(path, f"skin {s}: an inverse bind matrix is singular")
+        for k, n in enumerate(sj):
+            j = index[n]
+            if not bound[j]:
+                B[j], bound[j] = Bs[k], True
+                continue
+            dp = float(np.abs(B[j][:3, 3] - Bs[k][:3, 3]).max())
+            dr = float(_rotation_angle(_orthonormal(B[j][:3, :3])[0].T
+                                       @ _orthonormal(Bs[k][:3, :3])[0]))
+            if dp > _MISMATCH_POS or dr > _MISMATCH_ROT:
+                warn.append(f"joint '{names[j]}': skin {s} binds it {dp * 1000:.2f} mm / "
+                            f"{np.degrees(dr):.2f} deg away from the first skin's bind; "
+                            "using the first")
+    Rb, sv = _orthonormal(B[:, :3, :3])
+    if np.any(np.abs(sv / np.maximum(sv.mean(1, keepdims=True), 1e-12) - 1.0) > 1e-2):
+        _fail(path, "joints have non-uniform scale in the bind pose; rigid skeletons only")
+    Pb = B[:, :3, 3]
+    Bn = np.tile(np.eye(4), (J, 1, 1))      # the bind frames, rotations orthonormal
+    Bn[:, :3, :3], Bn[:, :3, 3] = Rb, Pb
+    rest_rot = np.array([Rb[j] if parents[j] < 0 else Rb[parents[j]].T @ Rb[j]
+                         for j in range(J)])
+
+    # ---- parts
+    parts = []
+    for i in mesh_nodes:
+        node = g.nodes[i]
+        skinned = node.skin is not None
+        prims = list(_mesh_primitives(path, rd, g, i, skinned=skinned))
+        P = np.concatenate([p for p, _, _, _ in prims])
+        off = np.cumsum([0] + [len(p) for p, _, _, _ in prims])
+        Ff = np.concatenate([t + o for (_, t, _, _), o in zip(prims, off)]).astype(np.int64)
+        if not np.all(np.isfinite(P)):
+            _fail(path, f"mesh {node.mesh}: vertices have NaN or Inf coordinates")
+        Mw = skin_space[node.skin] if skinned else Cz @ Wn[i]
+        Vw = P @ Mw[:3, :3].T + Mw[:3, 3]
+        diag = float(np.linalg.norm(Vw.max(0) - Vw.min(0))) if len(Vw) else 0.0
+        vmap, V = _merge_by_position(Vw, _MERGE_TOL * max(diag, 1e-12))
+        F = vmap[Ff]
+        F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 2] != F[:, 0])]
+        name = node.name or (g.meshes[node.mesh].name if g.meshes[node.mesh].name else f"node{i}")
+        part = GltfPart(name, i, int(node.mesh), "skinned" if skinned else "rigid", V, F, vmap,
+                        _open_edges(F) if len(F) else 0)
+        if skinned:
+            sj = [index[int(n)] for n in g.skins[node.skin].joints]
+            ji = np.concatenate([a for _, _, a, _ in prims])
+            wv = np.concatenate([b for _, _, _, b in prims])
+            if not np.all(np.isfinite(wv)) or np.any(wv < -1e-6):
+                _fail(path, f"mesh {node.mesh}: WEIGHTS contain NaN, Inf or negative values")
+            out = (ji < 0) | (ji >= len(sj))
+            if np.any(wv[out] > 0):
+                _fail(path, f"mesh {node.mesh}: JOINTS refer to joints outside skin "
+                            f"{node.skin}'s 0..{len(sj) - 1}")
+            wsum = wv.sum(1)
+            if np.any(wsum <= 1e-9):
+                _fail(path, f"mesh {node.mesh}: {int((wsum <= 1e-9).sum())} vertices have "
+                            "all-zero weights")
+            W = np.zeros((len(V), J))
+            np.add.at(W, (np.repeat(vmap, ji.shape[1]),
+                          np.asarray(sj)[np.clip(ji, 0, len(sj) - 1)].ravel()),
+                      (wv / wsum[:, None]).ravel())
+            W /= W.sum(1, keepdims=True)
+            k = min(ji.shape[1], J)
+            part.skin = int(node.skin)
+            part.Widx = np.argsort(-W, axis=1, kind="stable")[:, :k].astype(np.int64)
+            part.Wval = np.take_along_axis(W, part.Widx, axis=1)
+        else:
+            above = i if i in index else joint_parent(i)
+            if above >= 0:
+                part.joint = index[above]
+                part.local = np.linalg.inv(Bn[part.joint]) @ (Cz @ Wn[i])
+            else:
+                part.kind, part.local = "static", Cz @ Wn[i]
+        parts.append(part)
+
+    # ---- tips of leaf joints from every part that moves with them
+    Vall = np.concatenate([p.V for p in parts])
+    Wall = np.zeros((len(Vall), J))
+    row = 0
+    for p in parts:
+        if p.kind == "skinned":
+            np.put_along_axis(Wall[row:row + len(p.V)], p.Widx, p.Wval, axis=1)
+        elif p.kind == "rigid":
+            Wall[row:row + len(p.V), p.joint] = 1.0
+        row += len(p.V)
+    tips = _leaf_tips(Pb, Rb, parents, Vall, Wall)
+    try:
+        skel = Skeleton(names, parents, Pb, rest_rotations=rest_rot, tips=tips)
+    except ValueError as e:
+        _fail(path, f"skeleton: {e}")
+    return GltfScene(path=path, skeleton=skel, joint_nodes=np.asarray(order), parts=parts,
+                     warnings=warn, _gltf=g)
