@@ -1,10 +1,11 @@
 """skin_bag: replay a bag of joint states into skin_node and record what it says.
 
-Reads a rosbag2 bag (MCAP or SQLite3) with ``rosbags``, publishes its
-``sensor_msgs/msg/JointState`` messages on ``joint_states`` at the recorded
-rate (their header stamps untouched), and records the node's outputs into a
-new bag. Messages pass through as serialized CDR in both directions, so the
-tool neither parses nor re-encodes them::
+Reads a bag (rosbag2: MCAP or SQLite3, compressed or not; or a ROS 1
+``.bag``; :mod:`skin_node.io.bags`), publishes its ``sensor_msgs/msg/JointState``
+messages on ``joint_states`` at the recorded rate (their header stamps
+untouched), and records the node's outputs into a new rosbag2 bag. Messages
+pass through as serialized CDR in both directions (a ROS 1 message is
+converted once, on reading), so the tool neither parses nor re-encodes them::
 
     skin_bag in_bag out_bag --storage mcap --record skin/points skin/diagnostics
 
@@ -14,6 +15,11 @@ state once the node has answered the one before on ``skin/points`` (a cloud
 with that stamp or a later one), or after SECONDS without an answer (a message
 the node rejects is never answered): every pose is deformed however slow the
 machine, which is what reprocessing a bag for measurement wants.
+
+The summary line says what the node made of the poses, from its
+``skin/diagnostics`` (the counters' change over the replay): how many it
+received, answered, skipped as stale and rejected, by reason, with a hint for
+the usual cause (names that are no channel of the character: a name map).
 """
 from __future__ import annotations
 
@@ -25,18 +31,24 @@ import threading
 import time
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rclpy.serialization import deserialize_message
+from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import JointState
 
-from msg_adapters import header_stamp_ns
+from msg_adapters import Reason, diagnostic_values, header_stamp_ns
+from skin_node.io.bags import BagReader
 from skin_node.node import QOS_JOINT_STATES, init_ros, setting_up
 
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 POINTS_TOPIC = "skin/points"
+DIAGNOSTICS_TOPIC = "skin/diagnostics"
+#: Seconds to wait for the node's first diagnostics (1 Hz), the counters' baseline.
+BASELINE_WAIT = 1.5
 #: Message type of each topic the node publishes; other topics need "topic=pkg/msg/Type".
 KNOWN_TOPICS = {
     "skin/points": "sensor_msgs/msg/PointCloud2",
@@ -57,24 +69,64 @@ def _message_class(type_name: str):
 
 
 def read_joint_states(path: str, topic: str | None = None) -> list[tuple[int, bytes]]:
-    """(log time ns, CDR bytes) of every JointState in a bag, in log-time order.
+    """(log time ns, CDR bytes) of every JointState in a rosbag2 or ROS 1 bag,
+    in log-time order.
 
     Raises
     ------
     ValueError
-        When the bag holds no JointState message (on ``topic``, if given).
+        When the path is no bag, or the bag holds no JointState message (on
+        ``topic``, if given).
     """
-    with Reader(path) as reader:
-        conns = [c for c in reader.connections if c.msgtype == JOINT_STATE_TYPE
-                 and (topic is None or c.topic.lstrip("/") == topic.lstrip("/"))]
-        if not conns:
-            found = sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})
+    with BagReader(path) as reader:
+        messages = [(t, raw) for _, t, raw in reader.messages(JOINT_STATE_TYPE, topic)]
+        if not messages:
+            has_topic = any(m == JOINT_STATE_TYPE and (topic is None or
+                                                       t.lstrip("/") == topic.lstrip("/"))
+                            for t, m in reader.connections)
+            if has_topic:
+                raise ValueError(f"{path}: no JointState messages")
             raise ValueError(f"{path}: no {JOINT_STATE_TYPE} topic"
-                             f"{' ' + topic if topic else ''}; it holds {found}")
-        messages = [(t, bytes(raw)) for _, t, raw in reader.messages(connections=conns)]
-    if not messages:
-        raise ValueError(f"{path}: no JointState messages")
+                             f"{' ' + topic if topic else ''}; it holds {reader.describe()}")
     return messages
+
+
+def node_summary(before: dict | None, after: dict | None, sent: int) -> str:
+    """What the node made of the ``sent`` poses, from its diagnostics values
+    before and after the replay (:func:`msg_adapters.diagnostic_values`), e.g.
+    ``"the node answered 0 of 100, skipped 0 as stale, rejected 100 of 100
+    (no_known_names 100); no name (a, b, ...) is a channel of the character:
+    pass -p name_map:=MAP.yaml to skin_node (incoming: channel)"``.
+
+    ``before`` None means the node had counted nothing yet.
+    """
+    if after is None:
+        return "the node's diagnostics never arrived: rejections unknown"
+
+    def delta(key: str) -> int:
+        try:
+            return int(after.get(key, 0)) - (int(before.get(key, 0)) if before else 0)
+        except ValueError:
+            return 0
+
+    answered, stale = delta("frames_processed"), delta("frames_skipped_stale")
+    rejected = {r.value: delta(f"rejected_{r.value}") for r in Reason}
+    rejected = {k: n for k, n in rejected.items() if n > 0}
+    n_rej = sum(rejected.values())
+    text = (f"the node answered {answered} of {sent}, skipped {stale} as stale, "
+            f"rejected {n_rej} of {sent}")
+    if rejected:
+        text += " (" + ", ".join(f"{k} {n}" for k, n in rejected.items()) + ")"
+    hints = []
+    if "no_known_names" in rejected:
+        unknown = [n for n in str(after.get("unknown_names", "")).split(",") if n]
+        shown = ", ".join(unknown[:3]) + (", ..." if len(unknown) > 3 else "")
+        hints.append(f"no name ({shown}) is a channel of the character: pass "
+                     "-p name_map:=MAP.yaml to skin_node (incoming: channel)")
+    if "stamp_backwards" in rejected:
+        hints.append("header stamps go backwards: play one topic (--topic) or restart the "
+                     "node between bags")
+    return text + ("; " + "; ".join(hints) if hints else "")
 
 
 class BagRecorder(Node):
@@ -92,8 +144,16 @@ class BagRecorder(Node):
         #: Newest stamp (ns) seen on skin/points: what the node has answered.
         self.answered_ns = None
         self.answered = threading.Condition()
+        #: The node's diagnostics values: before playback (the baseline; None when
+        #: none came in time: a fresh node) and the newest.
+        self.diagnostics_before = self.diagnostics_last = None
+        self._matched_at, self._playing = None, False
         self.pub = self.create_publisher(JointState, "joint_states", QOS_JOINT_STATES)
         self.subs = []
+        if not any(t.lstrip("/") == DIAGNOSTICS_TOPIC for t in topics):
+            # Not recorded, but read: the summary says why poses went unanswered.
+            self.subs.append(self.create_subscription(
+                DiagnosticArray, DIAGNOSTICS_TOPIC, self._diagnostics, QOS_RECORD))
         for topic, type_name in topics.items():
             conn = writer.add_connection("/" + topic.lstrip("/"), type_name, typestore=typestore)
             self.subs.append(self.create_subscription(
@@ -101,8 +161,19 @@ class BagRecorder(Node):
                 lambda raw, t=topic, c=conn: self._received(t, c, raw),
                 QOS_RECORD, raw=True))
 
+    def _diagnostics(self, msg) -> None:
+        try:
+            values = diagnostic_values(msg)
+        except KeyError:                # an empty array: nothing to count
+            return
+        if not self._playing:
+            self.diagnostics_before = values
+        self.diagnostics_last = values
+
     def _received(self, topic: str, conn, raw: bytes) -> None:
         self._queue.put((topic, conn, self.get_clock().now().nanoseconds, raw))
+        if topic.lstrip("/") == DIAGNOSTICS_TOPIC:
+            self._diagnostics(deserialize_message(raw, DiagnosticArray))
         if topic.lstrip("/") == POINTS_TOPIC:
             try:
                 stamp = header_stamp_ns(raw)
@@ -121,9 +192,17 @@ class BagRecorder(Node):
             self.counts[topic] += 1
 
     def matched(self) -> bool:
-        """True once the node listens to us and we listen to each of its topics."""
-        return (self.pub.get_subscription_count() > 0
-                and all(s.get_publisher_count() > 0 for s in self.subs))
+        """True once the node listens to us, we listen to each of its topics, and its
+        first diagnostics came (the counters' baseline; at most
+        :data:`BASELINE_WAIT` s after matching)."""
+        if not (self.pub.get_subscription_count() > 0
+                and all(s.get_publisher_count() > 0 for s in self.subs)):
+            return False
+        if self._matched_at is None:
+            self._matched_at = time.monotonic()
+        self._playing = (self.diagnostics_before is not None
+                         or time.monotonic() - self._matched_at > BASELINE_WAIT)
+        return self._playing
 
 
 def _send_and_wait(node: BagRecorder, raw: bytes, seconds: float) -> bool:
@@ -159,7 +238,8 @@ def _sleep_writing(node: BagRecorder, seconds: float) -> None:
 
 def _parse(argv: list[str]) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog="skin_bag", description=__doc__.splitlines()[0])
-    ap.add_argument("in_bag", help="rosbag2 folder (or .mcap/.db3 file) of JointState")
+    ap.add_argument("in_bag", help="bag of JointState: rosbag2 folder (or its .mcap/.db3 "
+                    "file), or ROS 1 .bag")
     ap.add_argument("out_bag", help="new bag folder to record into (must not exist)")
     ap.add_argument("--topic", help="JointState topic to play (default: every JointState topic)")
     ap.add_argument("--record", nargs="+", default=["skin/points", "skin/diagnostics"],
@@ -247,7 +327,8 @@ def main(argv: list[str] | None = None) -> int:
                 if args.lockstep else "")
     print(f"skin_bag: played {len(messages)} joint states in {played_s:.2f} s{lockstep}; "
           "recorded " + ", ".join(f"{t} {n}" for t, n in counts.items())
-          + f" into {args.out_bag}")
+          + f" into {args.out_bag}; "
+          + node_summary(node.diagnostics_before, node.diagnostics_last, len(messages)))
     return 0
 
 

@@ -140,7 +140,7 @@ def load_character(spec: str, surface_vertices: int | None = None, tet_count: in
         default_tets = max(6000, 2 * len(V))
     else:
         from .io.character_file import load_character_file
-        V, F, skel = load_character_file(Path(spec))
+        V, F, skel = load_character_file(Path(spec), verbose=progress)
         name = Path(spec).stem
         default_tets = max(6000, 2 * len(V))
     opt = options or RigOptions()

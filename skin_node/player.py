@@ -1,18 +1,21 @@
 """mocap_player: publish a motion clip as sensor_msgs/JointState on ``joint_states``.
 
-The clip is a built-in one (``--clip``, default per character) or a BVH file
-(``--bvh``) retargeted onto the character's skeleton, played at its own frame
-rate times ``--rate``. Every option is also a ROS parameter of the same name
-(``--ros-args -p clip:=walk``)::
+The clip is a built-in one (``--clip``, default per character), one of a glTF
+character's own animations (``--clip NAME``; a glTF character plays its first
+by default; ``--list-clips`` names what a character can play) sampled at
+``--fps``, or a BVH file (``--bvh``) retargeted onto the character's skeleton,
+played at its own frame rate times ``--rate``. Every option is also a ROS
+parameter of the same name (``--ros-args -p clip:=walk``)::
 
     mocap_player --character humanoid --clip walk --loop
+    mocap_player --character CesiumMan.glb --list-clips
+    mocap_player --character CesiumMan.glb --clip animation0 --fps 60 --loop
     mocap_player --character humanoid --bvh walk.bvh --mapping config/cmu_to_humanoid.yaml
 """
 from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 import numpy as np
 import rclpy
@@ -21,47 +24,16 @@ from rclpy.task import Future
 from sensor_msgs.msg import JointState
 
 from msg_adapters import channels_to_joint_state, load_name_map
+from skin_node.motion import FPS, character_skeleton, clip_names  # noqa: F401 (re-exported)
+from skin_node.motion import load_motion as _load_clip
 from skin_node.node import QOS_JOINT_STATES, build, init_ros, spin_until_shutdown
 
 
-
-def config_path(name: str) -> Path:
-    """A file of the package's config/ folder, installed or in the source tree."""
-    try:
-        from ament_index_python.packages import get_package_share_directory
-        path = Path(get_package_share_directory("skin_node")) / "config" / name
-        if path.exists():
-            return path
-    except (ImportError, LookupError, OSError):  # not installed, or no ament index set
-        pass
-    return Path(__file__).resolve().parents[1] / "config" / name
-
-
-def character_skeleton(character: str):
-    """The skeleton of a built-in character or a character file, without rigging it."""
-    from skin_node.builtin.characters import BUILTIN_CHARACTERS
-    if character in BUILTIN_CHARACTERS:
-        # The skeleton does not depend on the density: the coarsest mesh is cheapest.
-        return BUILTIN_CHARACTERS[character](surface_vertices=2000)[2]
-    from skin_node import load_character
-    return load_character(character).skeleton
-
-
-def load_motion(character: str, clip: str = "", bvh: str = "",
-                mapping: str = "") -> tuple[str, list[str], np.ndarray, float]:
-    """(name, channel names, (T, C) frames, fps) of a built-in clip or a retargeted BVH."""
-    skeleton = character_skeleton(character)
-    if bvh:
-        from skin_node.io.bvh import load_bvh
-        from skin_node.retarget import load_mapping, retarget_bvh
-        source = load_bvh(bvh)
-        # A character file picks its map by name: .../CesiumMan.glb -> cmu_to_cesiumman.yaml
-        default = config_path(f"cmu_to_{Path(character).stem.lower()}.yaml")
-        spec = load_mapping(mapping or default, skeleton, source)
-        names, frames, fps = retarget_bvh(source, skeleton, spec)
-        return Path(bvh).stem, list(names), np.asarray(frames), float(fps)
-    from skin_node import default_clip_name, make_clip
-    c = make_clip(clip or default_clip_name(character), skeleton)
+def load_motion(character: str, clip: str = "", bvh: str = "", mapping: str = "",
+                fps: float = 0.0) -> tuple[str, list[str], np.ndarray, float]:
+    """(name, channel names, (T, C) frames, fps) of what ``character`` plays
+    (:func:`skin_node.motion.load_motion`; ``fps`` samples a glTF animation)."""
+    c = _load_clip(character, clip, bvh, mapping, fps or None)
     return c.name, list(c.channel_names), np.asarray(c.frames), float(c.fps)
 
 
@@ -72,7 +44,7 @@ class MocapPlayer(Node):
         super().__init__("mocap_player")
         p = {k: self.declare_parameter(k, v).value for k, v in vars(defaults).items()}
         self.clip_name, names, self.frames, fps = load_motion(
-            p["character"], p["clip"], p["bvh"], p["mapping"])
+            p["character"], p["clip"], p["bvh"], p["mapping"], p["fps"])
         if p["name_map"]:
             # The map reads incoming -> channel; the player speaks the incoming names.
             inverse = {ch: src for src, ch in load_name_map(p["name_map"]).items()}
@@ -108,7 +80,13 @@ class MocapPlayer(Node):
 def _parse(argv: list[str]) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog="mocap_player", description=__doc__.splitlines()[0])
     ap.add_argument("--character", default="humanoid", help="arm | humanoid | character file")
-    ap.add_argument("--clip", default="", help="built-in clip (default: the character's)")
+    ap.add_argument("--clip", default="",
+                    help="built-in clip, or a glTF character's animation (NAME or gltf:NAME); "
+                         "default: the file's first animation, else the character's clip")
+    ap.add_argument("--list-clips", action="store_true",
+                    help="print the clips the character can play and exit")
+    ap.add_argument("--fps", type=float, default=float(FPS),
+                    help="sampling rate of a glTF animation (default: %(default)g)")
     ap.add_argument("--bvh", default="", help="BVH file to retarget and play instead")
     ap.add_argument("--mapping", default="",
                     help="retarget mapping YAML (default: config/cmu_to_<character name>.yaml)")
@@ -117,7 +95,17 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     ap.add_argument("--rate", type=float, default=1.0, help="speed factor")
     ap.add_argument("--frames", type=int, default=0, help="stop after N frames (0: clip end)")
     ap.add_argument("--loop", action="store_true", help="repeat the clip")
-    return ap.parse_args(argv)
+    args = ap.parse_args(argv)
+    if args.fps <= 0:
+        ap.error(f"--fps must be > 0, got {args.fps:g}")
+    if args.list_clips:
+        try:
+            print("\n".join(clip_names(args.character)))
+        except ValueError as e:
+            ap.exit(2, f"mocap_player: error: {e}\n")
+        ap.exit(0)
+    del args.list_clips             # not a parameter of the running player
+    return args
 
 
 def main(argv: list[str] | None = None) -> int:

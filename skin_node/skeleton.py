@@ -44,9 +44,16 @@ def euler_xyz_to_matrix(angles: np.ndarray) -> np.ndarray:
 def matrix_to_euler_xyz(R: np.ndarray) -> np.ndarray:
     """Inverse of :func:`euler_xyz_to_matrix`: (..., 3, 3) -> (..., 3) (rx, ry, rz)."""
     R = np.asarray(R, dtype=np.float64)
-    ry = np.arcsin(np.clip(-R[..., 2, 0], -1.0, 1.0))
+    cy = np.hypot(R[..., 0, 0], R[..., 1, 0])
+    ry = np.arctan2(-R[..., 2, 0], cy)        # atan2, not asin: exact near +-90 degrees
     rx = np.arctan2(R[..., 2, 1], R[..., 2, 2])
     rz = np.arctan2(R[..., 1, 0], R[..., 0, 0])
+    # At ry = +-90 degrees only rx - rz (or rx + rz) is defined: put it all in rx.
+    lock = cy < 1e-9
+    if np.any(lock):
+        s = np.sign(-R[..., 2, 0])
+        rx = np.where(lock, np.arctan2(s * R[..., 0, 1], R[..., 1, 1]), rx)
+        rz = np.where(lock, 0.0, rz)
     return np.stack([rx, ry, rz], axis=-1)
 
 

@@ -220,3 +220,29 @@ def test_ablation_shows_what_each_part_buys(tmp_path, capsys):
     assert runs["default"]["crossings_max"] == 0 < runs["no-collision"]["crossings_max"]
     assert runs["no-volume"]["region_volume_ratio_deepest"] < \
         runs["default"]["region_volume_ratio_deepest"] - 0.02
+
+
+def test_a_gltf_characters_own_clips_are_scenes(tmp_path, monkeypatch, capsys):
+    """``--clips gltf:NAME`` (or the bare NAME) runs a glTF file's animation; with no
+    clips named, a glTF scene runs its own animations, not a humanoid's walk."""
+    from test_gltf_clips import write_animated_glb
+    monkeypatch.setenv("SKIN_NODE_CACHE", str(tmp_path / "cache"))
+    glb = str(write_animated_glb(tmp_path / "leg.glb"))
+    out = tmp_path / "out"
+    common = ["run", "--pipelines", "lbs", "--scenes", glb, "--stride", "10", "--ref-frames",
+              "0", "--no-charts", "--no-progress", "--out", str(out)]
+    assert cli.main(common + ["--clips", "gltf:walk,animation1"]) == 0
+    runs = json.loads((out / "runs.json").read_text())["runs"]
+    # 1 s at 120 Hz, every 10th of 121 frames; the unnamed wave: 0.25 s, 31 frames
+    assert [(r["motion"], r["frames"]) for r in runs] == [("gltf:walk", 13),
+                                                          ("gltf:animation1", 4)]
+    assert cli.main(common) == 0
+    assert [r["motion"] for r in json.loads((out / "runs.json").read_text())["runs"]] == \
+        ["gltf:walk", "gltf:animation1"]
+    # the frames deformed are the file's: the bench's poses are the clip's
+    from skin_node.motion import load_motion
+    mo = cli.motion("gltf:walk", glb, load_scene(parse_scene(glb))[0], stride=10)
+    assert np.array_equal(mo.frames, load_motion(glb, "walk").frames[::10])
+    capsys.readouterr()
+    assert cli.main(common + ["--clips", "gltf:run"]) == 2
+    assert "no animation named 'run'" in capsys.readouterr().err

@@ -1,6 +1,8 @@
 """Character files: a mesh plus a skeleton in YAML, and their errors."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import trimesh
@@ -76,3 +78,26 @@ def test_bad_files_name_the_file_and_the_problem(tmp_path, doc, message):
     with pytest.raises(ValueError) as e:
         load_character(str(path), progress=False, cache=False)
     assert str(path) in str(e.value) and message in str(e.value), str(e.value)
+
+
+@pytest.mark.parametrize("mesh, message", [
+    ("open", "surface is open"),
+    ("empty", "cannot be read as a mesh|holds no triangles"),
+    ("missing", "mesh file does not exist"),
+])
+def test_a_bad_mesh_names_the_mesh_file_and_the_yaml(tmp_path, mesh, message):
+    """The mesh file is the one to fix: its path comes first, then the YAML's."""
+    obj = tmp_path / "meshes" / "body.obj"
+    obj.parent.mkdir()
+    if mesh == "open":
+        m = trimesh.creation.box()
+        trimesh.Trimesh(m.vertices, m.faces[:-1], process=False).export(obj)
+    elif mesh == "empty":
+        obj.write_text("# nothing\n")
+    path = write(tmp_path / "c.yaml", {"mesh": "meshes/body.obj", "joints": JOINTS})
+    with pytest.raises(ValueError) as e:
+        load_character(str(path), progress=False, cache=False)
+    text = str(e.value)
+    assert text.startswith(f"{obj.resolve()}: "), text
+    assert f"(the mesh of {path})" in text and len(text.splitlines()) == 1, text
+    assert re.search(message, text), text

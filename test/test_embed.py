@@ -1,5 +1,7 @@
 """Automatic skeleton embedding: templates placed inside bare closed meshes, then
-rigged and deformed with no hand work."""
+rigged and deformed with no hand work; the fit finds the mesh's orientation and
+checks itself, and a fit that fails its checks is refused."""
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -7,8 +9,10 @@ import pytest
 
 from skin_node.builtin.characters import make_humanoid
 from skin_node.builtin.quadruped import quadruped_walk
-from skin_node.rigging.embed import (embed_skeleton, load_embedded, load_template,
-                                     read_closed_mesh, surface_distance, winding_numbers)
+from skin_node.io.character_file import CharacterFileError, load_character_file
+from skin_node.rigging.embed import (EmbeddingError, embed_skeleton, fit_template,
+                                     load_embedded, load_template, read_closed_mesh,
+                                     surface_distance, winding_numbers)
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 SPOT = DATA / "meshes" / "spot_triangulated.obj"
@@ -163,3 +167,114 @@ def test_character_file_with_template(tmp_path):
     bad.write_text(f"mesh: {spot}\ntemplate: no_such_template\n")
     with pytest.raises(ValueError, match="bad.yaml.*no_such_template"):
         load_character(str(bad), tet_count=6000, progress=False)
+
+
+# ------------------------------------------------------- orientation and checks
+def turns() -> list:
+    """The 24 rotations that take coordinate axes to coordinate axes."""
+    out = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1, -1), repeat=3):
+            R = np.zeros((3, 3))
+            R[range(3), perm] = signs
+            if np.linalg.det(R) > 0:
+                out.append(R)
+    assert len(out) == 24
+    return out
+
+
+CHECKS = ["inside", "order along up", "left/right apart", "mirror", "bones inside"]
+
+
+def assert_fits_in_every_orientation(V, F, template, joint_tol):
+    """Each turned copy is fitted in its first-guess frame (no retry needed), passes
+    every check, and its joints are the upright fit's, turned, within joint_tol."""
+    base = fit_template(V, F, template)
+    assert base.passed and base.tried == 1, base.summary()
+    assert [c.name for c in base.checks] == CHECKS
+    bad = []
+    for R in turns():
+        e = fit_template(V @ R.T, F, template)
+        err = np.linalg.norm(e.skeleton.rest_positions - base.skeleton.rest_positions @ R.T,
+                             axis=1).max()
+        if not (e.passed and e.tried == 1 and np.allclose(e.frame, R @ base.frame, atol=1e-9)
+                and err < joint_tol):
+            bad.append((R.astype(int).tolist(), round(float(err), 3), e.summary()))
+    assert not bad, bad
+
+
+def test_the_builtin_humanoid_fits_in_all_24_orientations(humanoid_mesh):
+    V, F, _ = humanoid_mesh
+    assert_fits_in_every_orientation(V, F, "humanoid", joint_tol=0.03)   # 1.0 cm measured
+
+
+def test_spot_fits_the_quadruped_in_all_24_orientations():
+    V, F = read_closed_mesh(_need(SPOT))
+    # Spot is 1.7 m long; the voxel grid lies differently in each turn (8.8 cm measured).
+    assert_fits_in_every_orientation(V, F, "quadruped", joint_tol=0.15)
+
+
+def test_the_checks_figures_on_a_good_fit(humanoid_mesh):
+    V, F, _ = humanoid_mesh
+    e = fit_template(V, F, "humanoid")
+    c = {x.name: x for x in e.checks}
+    assert c["inside"].figure.startswith("22 of 22 joints and tips inside")
+    assert "l_knee above l_ankle" in c["order along up"].figure   # the shortest step
+    assert "times the limbs' radius" in c["left/right apart"].figure
+    line = e.summary()
+    assert line.startswith("template 'humanoid' embedded, up +z (detected), forward +x "
+                           "(detected); inside: ")
+    assert all(f"{n}: " in line for n in CHECKS) and "\n" not in line
+
+
+def test_a_humanoid_in_a_cow_is_refused_with_the_failed_check_and_hints(tmp_path):
+    """Spot (a cow) under the humanoid template: the legs land in one of the cow's
+    legs in every orientation; the fit is refused in one line naming the check,
+    its figure, the hints and the template that would fit."""
+    spot = _need(SPOT)
+    V, F = read_closed_mesh(spot)
+    with pytest.raises(EmbeddingError) as e:
+        embed_skeleton(V, F, "humanoid")
+    msg = str(e.value)
+    assert "\n" not in msg
+    assert "(and in 7 other orientation(s)): check 'left/right apart' failed: " \
+           "l_knee and r_knee" in msg, msg
+    assert "say up: and forward: (e.g. up: y, forward: -z)" in msg
+    assert msg.endswith("or the mesh is no humanoid: template: quadruped"), msg
+    fit = e.value.embedding
+    assert not fit.passed and fit.tried == 8
+    # Told the right way up and round, it still cannot be a humanoid: the hint is
+    # explicit joints, and no other template is guessed (the user chose this one).
+    p = tmp_path / "cow_as_human.yaml"
+    p.write_text(f"mesh: {spot}\ntemplate: humanoid\nup: y\nforward: -z\n")
+    with pytest.raises(CharacterFileError) as e:
+        load_character_file(p)
+    msg = str(e.value)
+    assert msg.startswith(f"{p}: template 'humanoid' does not fit this mesh, up +y (given), "
+                          "forward -z (given): check 'left/right apart' failed: "), msg
+    assert "check up: and forward:, or list the joints (joints:)" in msg
+
+
+def test_a_quadruped_in_the_humanoid_is_refused(humanoid_mesh):
+    V, F, _ = humanoid_mesh
+    fit = fit_template(V, F, "quadruped")
+    assert not fit.passed and fit.tried == 8
+    failed = [c.name for c in fit.checks if not c.passed]
+    assert failed and set(failed) <= set(CHECKS)
+    assert f"check '{failed[0]}' failed" in fit.failure()
+
+
+def test_the_start_up_output_reports_every_check(humanoid_mesh, tmp_path, capsys):
+    import trimesh
+    V, F, _ = humanoid_mesh
+    R = turns()[7]
+    trimesh.Trimesh(V @ R.T, F, process=False).export(tmp_path / "body.obj")
+    p = tmp_path / "body.yaml"
+    p.write_text("mesh: body.obj\ntemplate: humanoid\n")
+    skel = load_character_file(p)[2]
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"[skin_node] {p}: template 'humanoid' embedded")
+    assert all(f"{n}: " in err[0] for n in CHECKS)
+    np.testing.assert_allclose(skel.rest_rotations[0], R, atol=1e-6)
+    load_character_file(p, verbose=False)
+    assert capsys.readouterr().err == ""

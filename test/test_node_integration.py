@@ -2,8 +2,8 @@
 
 Each test starts ``skin_node`` (the installed console script when it is on
 PATH, else ``python -m skin_node.node``) on its own ROS_DOMAIN_ID with DDS kept
-on localhost, replays a rosbag2 bag written here with ``rosbags`` through
-``skin_bag``, and reads the bag ``skin_bag`` recorded.
+on localhost, replays a bag written here with ``rosbags`` (rosbag2, or ROS 1)
+through ``skin_bag``, and reads the bag ``skin_bag`` recorded.
 """
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 import yaml
 from rclpy.serialization import deserialize_message, serialize_message
-from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import JointState, PointCloud2
 from diagnostic_msgs.msg import DiagnosticArray
@@ -29,6 +29,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 import skin_node
 from skin_node.player import character_skeleton
 from msg_adapters import Reason, diagnostic_values, point_cloud2_to_vertices
+from skin_node.io.bags import BagReader
 
 REPO = Path(__file__).resolve().parents[1]
 PR2_BAG = REPO.parent / "shared" / "data" / "bags" / "pr2_joint_states_mcap"
@@ -122,12 +123,12 @@ def play_and_record(env: dict, in_bag: Path, out_bag: Path, *args: str) -> str:
 def read_outputs(bag: Path) -> tuple[list[PointCloud2], dict]:
     """Recorded point clouds, and the values of the last diagnostics message."""
     clouds, diag = [], None
-    with Reader(bag) as reader:
-        for conn, _, raw in reader.messages():
-            if conn.topic == "/skin/points":
-                clouds.append(deserialize_message(bytes(raw), PointCloud2))
-            elif conn.topic == "/skin/diagnostics":
-                diag = deserialize_message(bytes(raw), DiagnosticArray)
+    with BagReader(bag) as reader:
+        for topic, _, raw in reader.messages():
+            if topic == "/skin/points":
+                clouds.append(deserialize_message(raw, PointCloud2))
+            elif topic == "/skin/diagnostics":
+                diag = deserialize_message(raw, DiagnosticArray)
     assert diag is not None, "no diagnostics recorded"
     return clouds, diagnostic_values(diag)
 
@@ -214,6 +215,67 @@ def test_replay_answers_each_valid_message_once_and_counts_bad_ones(tmp_path, st
         assert int(diag[f"rejected_{reason.value}"]) == len(stamps), reason
     assert diag["unknown_names"] == "caster_wheel,gripper"
     assert "rejected" in log.read_text()  # the throttled warning
+
+
+def test_a_ros1_bag_replays_like_a_rosbag2_one(tmp_path):
+    """A ROS 1 .bag (written here by rosbags) through skin_bag: every valid pose
+    answered with its stamp, the unknown names counted, and the summary says so."""
+    from test_bags import write_ros1_bag
+    stream, valid, _ = arm_stream(n_valid=30, hz=20.0, with_bad=False)
+    unknown = [(t + 1000, joint_state(t + 1000, ["caster_wheel"], [0.5]))
+               for t, _ in stream[9::10]]
+    bag = write_ros1_bag(tmp_path / "in.bag", sorted(stream + unknown, key=lambda x: x[0]))
+    with arm_node(tmp_path, "-p", "pipeline:=[dqs, smooth]") as (proc, env, log):
+        out = play_and_record(env, bag, tmp_path / "out", "--lockstep", "2")
+        assert proc.poll() is None, "node died"
+    clouds, diag = read_outputs(tmp_path / "out")
+    assert [stamp_ns(c) for c in clouds] == valid
+    poses = {t: np.array(m.position) for t, m in stream}
+    ch = skin_node.load_character("arm", surface_vertices=ARM_VERTICES, progress=False)
+    pipe = skin_node.Pipeline(ch, ["dqs", "smooth"])
+    for c in clouds[::7]:
+        assert np.abs(point_cloud2_to_vertices(c) - pipe.deform(poses[stamp_ns(c)])).max() < 1e-6
+    assert int(diag["rejected_no_known_names"]) == len(unknown) == 3
+    assert f"played {len(stream) + 3} joint states" in out
+    assert "the node answered 30 of 33, skipped 0 as stale, rejected 3 of 33 " \
+           "(no_known_names 3); no name (caster_wheel) is a channel" in out, out
+
+
+def test_a_gltf_characters_own_clip_through_the_node(tmp_path):
+    """A glTF file's animation (cubic, step and linear tracks) named by mocap_player,
+    replayed as joint states through the node: each pose's skin is the pipeline's."""
+    from test_gltf_clips import write_animated_glb
+    from skin_node.motion import load_motion
+    glb = write_animated_glb(tmp_path / "leg.glb")
+    res = subprocess.run(_command("mocap_player", "skin_node.player")
+                         + ["--character", str(glb), "--list-clips"],
+                         env=_env(), cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0 and res.stdout.split() == ["walk", "animation1"], res.stderr
+    clip = load_motion(str(glb), "walk", fps=30.0)
+    t0, dt = 1_700_000_000 * 10**9, 10**9 // 30
+    stream = [(t0 + k * dt, joint_state(t0 + k * dt, clip.channel_names, q))
+              for k, q in enumerate(clip.frames)]
+    write_bag(tmp_path / "in", "mcap", stream)
+    with running_node(tmp_path, "-p", f"character:={glb}", "-p", "weights:=file") \
+            as (proc, env, log):
+        play_and_record(env, tmp_path / "in", tmp_path / "out", "--lockstep", "5")
+        res = subprocess.run(
+            _command("mocap_player", "skin_node.player") + [
+                "--character", str(glb), "--clip", "walk", "--fps", "30", "--frames", "20"],
+            env=env, cwd=REPO, capture_output=True, text=True, timeout=120)
+        assert res.returncode == 0, res.stderr
+        assert "playing 'walk': 31 frames at 30.0 Hz" in res.stderr
+        assert "sent 20 frames" in res.stderr
+    clouds, diag = read_outputs(tmp_path / "out")
+    assert [stamp_ns(c) for c in clouds] == [t for t, _ in stream]
+    pipe = skin_node.Pipeline(skin_node.load_character(str(glb), weights="file",
+                                                       progress=False))
+    moved = 0.0
+    for c, q in zip(clouds, clip.frames):
+        X = point_cloud2_to_vertices(c)
+        assert np.abs(X - pipe.deform(q)).max() < 1e-6
+        moved = max(moved, float(np.abs(X - pipe.character.V).max()))
+    assert moved > 0.3                  # the walk moves the leg, root and all
 
 
 def test_burst_processes_newest_and_counts_stale(tmp_path):
@@ -330,9 +392,9 @@ def _pr2_or_skip() -> Path:
 def test_real_pr2_bag_unknown_names_are_counted_not_fatal(tmp_path):
     bag = _pr2_or_skip()
     n = 300   # 3 s of the 100 Hz recording, at the recorded rate
-    with Reader(bag) as reader:
-        stamps = [stamp_ns(deserialize_message(bytes(raw), JointState))
-                  for _, _, raw in reader.messages()][:n]
+    with BagReader(bag) as reader:
+        stamps = [stamp_ns(deserialize_message(raw, JointState))
+                  for _, _, raw in reader.messages("sensor_msgs/msg/JointState")][:n]
     # Mapped: 7 PR2 right-arm joints drive the arm, the other 35 names are unknown.
     with arm_node(tmp_path, "-p", f"name_map:={NAME_MAP}") as (proc, env, log):
         play_and_record(env, bag, tmp_path / "mapped", "--limit", str(n))
@@ -348,10 +410,15 @@ def test_real_pr2_bag_unknown_names_are_counted_not_fatal(tmp_path):
 
     # Unmapped: no PR2 name is an arm channel; every message is rejected, none answered.
     with arm_node(tmp_path) as (proc, env, log):
-        play_and_record(env, bag, tmp_path / "unmapped", "--limit", "100", "--rate", "2")
+        out = play_and_record(env, bag, tmp_path / "unmapped", "--limit", "100", "--rate", "2")
         assert proc.poll() is None
     clouds, diag = read_outputs(tmp_path / "unmapped")
     assert clouds == []
+    # skin_bag says why nothing came back, and what to do about it.
+    assert "recorded skin/points 0," in out
+    assert "the node answered 0 of 100, skipped 0 as stale, rejected 100 of 100 " \
+           "(no_known_names 100); no name (" in out, out
+    assert "pass -p name_map:=MAP.yaml" in out
     assert int(diag["rejected_no_known_names"]) == 100
     assert int(diag["unknown_name_count"]) == 42
 

@@ -5,8 +5,10 @@ Subcommands (``run`` is the default when the first argument is an option)::
     skin_bench run --pipelines lbs,dqs,pbs,paper,default --scenes arm:2000,arm:6000 \\
                    --clips elbow_bend,wrist_twist --iterations 1,2,5,10,30 --out out/
     skin_bench run --pipelines '{"name": "dqs+pbd", "stages": ["dqs", "pbd"]}' ...
+    skin_bench run --scenes CesiumMan.glb --clips gltf:animation0   # a file's own clip
     skin_bench stability --pipelines lbs,default --long-frames 100000
     skin_bench memory --scene humanoid:24000 --frames 3000
+    skin_bench export-memory --frames 1000   # the streaming exporter's peak RSS
     skin_bench ablation --scenes humanoid:24000 --clips walk,squat   # each part's worth
     skin_bench ros-latency --seconds 10
     skin_bench report            # everything, into bench_results/, prints a markdown table
@@ -32,8 +34,8 @@ import numpy as np
 
 from . import charts
 from ..pipeline import STAGE_NAMES
-from .measure import (Progress, expand_methods, expand_scenes, load_scene, make_motion,
-                      memory_profile, parse_method, run_method)
+from .measure import (JITTER_FRAMES, Motion, Progress, expand_methods, expand_scenes,
+                      load_scene, make_motion, memory_profile, parse_method, run_method)
 
 DEFAULT_PIPELINES = "lbs,dqs,pbs,paper,default"
 DEFAULT_CLIPS = {"arm": ["elbow_bend", "wrist_twist"], "humanoid": ["walk", "squat"]}
@@ -105,6 +107,28 @@ def environment() -> dict:
 
 
 # ------------------------------------------------------------------------ run
+def scene_clips(character: str) -> list:
+    """The clips a scene runs when none are named: a glTF character's own
+    animations (``gltf:NAME``), else the character's built-in ones."""
+    from ..motion import GLTF_PREFIX, file_animations
+    own = [GLTF_PREFIX + a for a in file_animations(character)]
+    return own or DEFAULT_CLIPS.get(character, ["walk"])
+
+
+def motion(name: str, character_spec: str, ch, steps: int = 37, stride: int = 1,
+           max_frames: int | None = None) -> Motion | None:
+    """:func:`~skin_node.bench.measure.make_motion`, or a glTF character's own
+    animation (``NAME`` or ``gltf:NAME``, sampled at 120 Hz like the built-in
+    clips, named ``gltf:NAME`` in the results)."""
+    from ..motion import GLTF_PREFIX, file_clip
+    clip = file_clip(character_spec, name)
+    if clip is None:
+        return make_motion(name, ch, steps=steps, stride=stride, max_frames=max_frames)
+    frames = clip.frames[::max(1, stride)][:max_frames or None]
+    return Motion(GLTF_PREFIX + clip.name, frames, None, clip.fps / max(1, stride),
+                  clip.frames[:JITTER_FRAMES])
+
+
 def run_bench(pipelines, scenes, clips=None, iterations=None, stiffness=None, tets=None,
               stride: int = 6, max_frames: int | None = None, sweep_steps: int = 37,
               reference: bool = True, ref_frames: int = 6, crossings_every: int = 1,
@@ -117,8 +141,9 @@ def run_bench(pipelines, scenes, clips=None, iterations=None, stiffness=None, te
     plan = []
     for sc in scenes:
         ch, _ = load_scene(sc)
-        for c in (clips or DEFAULT_CLIPS.get(sc.character, ["walk"])):
-            mo = make_motion(c, ch, steps=sweep_steps, stride=stride, max_frames=max_frames)
+        for c in (clips or scene_clips(sc.character)):
+            mo = motion(c, sc.character, ch, steps=sweep_steps, stride=stride,
+                        max_frames=max_frames)
             if mo is None:
                 print(f"skin_bench: {c} does not apply to {sc.label}; skipped", file=sys.stderr)
                 continue
@@ -429,9 +454,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="preset names (comma-separated) and/or JSON dicts "
                         '{"name", "preset", "stages", "params"}')
     r.add_argument("--scenes", default="arm:2000",
-                   help="comma-separated character:surface_vertices[:tets]")
+                   help="comma-separated character:surface_vertices[:tets] (or a character file)")
     r.add_argument("--clips", default="", help="clips and pose sweeps (elbow_bend, wrist_twist, "
-                   "walk, squat, elbow_sweep, twist_sweep); default per character")
+                   "walk, squat, elbow_sweep, twist_sweep) or a glTF character's animations "
+                   "(NAME or gltf:NAME); default per character, a glTF's own animations")
     r.add_argument("--iterations", default="", help="sweep, e.g. 1,2,5,10,30")
     r.add_argument("--stiffness", default="", help="sweep, e.g. 0.2,0.5,0.8")
     r.add_argument("--tets", default="", help="sweep of tet counts, e.g. 6000,12000,24000")
@@ -459,6 +485,17 @@ def _parser() -> argparse.ArgumentParser:
     m.add_argument("--in-process", action="store_true", help="measure this process")
     m.add_argument("--print-json", action="store_true", help=argparse.SUPPRESS)
     common(m)
+
+    e = sub.add_parser("export-memory", help="peak RSS of the streaming exporter against "
+                                             "the pipeline alone")
+    e.add_argument("--character", default="humanoid")
+    e.add_argument("--frames", type=int, default=1000)
+    e.add_argument("--bvh", default=None,
+                   help="BVH take to retarget (default: CMU 01_01 from the shared data)")
+    e.add_argument("--clip", default="", help="a clip instead of a BVH take")
+    e.add_argument("--outputs", default="glb,usdc", help="suffixes to write at once")
+    e.add_argument("--keep", action="store_true", help="keep the exported files in --out")
+    common(e)
 
     b = sub.add_parser("ablation", help="the default pipeline with each part left out: "
                                         "time against accuracy")
@@ -518,6 +555,13 @@ def main(argv: list | None = None) -> int:
                 mem = run_memory(a.scene, a.frames, a.every, a.out, progress=prog)
             print(memory_line(mem))
             return 0 if mem["flat"] else 1
+        elif a.cmd == "export-memory":
+            from .export_memory import export_memory_line, run_export_memory
+            res = run_export_memory(a.character, a.frames, a.bvh, a.clip, _list(a.outputs),
+                                    a.out, a.keep)
+            print(export_memory_line(res))
+            for line in res["lines"]:
+                print("  " + line)
         elif a.cmd == "report":
             print(report(a.out, quick=a.quick, ros=not a.no_ros, progress=prog))
     except ValueError as e:

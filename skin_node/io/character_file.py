@@ -17,10 +17,14 @@ Instead of ``joints``, ``template: humanoid`` (or ``quadruped``, or a template
 YAML path) embeds that template skeleton in the mesh automatically
 (:mod:`skin_node.rigging.embed`); optional ``up:`` / ``forward:`` (``y``,
 ``-z``, ...) say how the mesh is oriented when detection would get it wrong.
-Errors name the file and say what is wrong with it.
+The fit is checked; its figures are printed in one line at start-up, and a fit
+that fails its checks is refused with the check and the hint that would help.
+Errors name the file and say what is wrong with it: a bad mesh names the mesh
+file first, then the character file that named it.
 """
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -37,8 +41,12 @@ def _fail(path: Path, msg: str):
     raise CharacterFileError(f"{path}: {msg}")
 
 
-def load_character_file(path: Path):
+def load_character_file(path: Path, verbose: bool = True):
     """Read a character file.
+
+    With ``template:``, the embedded skeleton's checks and their figures are
+    printed to stderr in one line (``verbose``), and a fit that fails them is
+    refused (:mod:`skin_node.rigging.embed`).
 
     Returns
     -------
@@ -69,23 +77,36 @@ def load_character_file(path: Path):
     if not isinstance(doc, dict):
         _fail(path, "expected a mapping with 'mesh' (or 'vertices' and 'faces') and 'joints'")
     scale = float(doc.get("scale", 1.0))
-    V, F = _mesh(path, doc)
+    V, F, mesh_path = _mesh(path, doc)
     V = V * scale
-    check_surface(path, V, F)
-    return V, F, _skeleton(path, doc, scale, V, F)
+    if mesh_path is None:
+        check_surface(path, V, F)
+    else:
+        # A bad surface is the mesh file's fault: name it first, and the YAML that named it.
+        try:
+            check_surface(mesh_path, V, F)
+        except CharacterFileError as e:
+            raise CharacterFileError(f"{e} (the mesh of {path})") from None
+    return V, F, _skeleton(path, doc, scale, V, F, verbose)
 
 
 def _mesh(path: Path, doc: dict):
+    """(V, F, mesh file or None for an inline mesh) of a character file."""
+    mesh_path = None
     if "mesh" in doc:
         mesh_path = (path.parent / str(doc["mesh"])).resolve()
+        named = f"(the mesh of {path})"
         if not mesh_path.exists():
-            _fail(path, f"mesh file {mesh_path} does not exist")
+            _fail(mesh_path, f"mesh file does not exist {named}")
         import trimesh
         try:
             m = trimesh.load(mesh_path, force="mesh", process=False)
         except Exception as e:  # trimesh raises many kinds for bad files
-            _fail(path, f"mesh file {mesh_path} cannot be read ({e})")
+            _fail(mesh_path, f"cannot be read as a mesh ({e}) {named}")
         V, F = np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
+        if V.ndim != 2 or V.shape[1:] != (3,) or len(V) == 0 or F.ndim != 2 \
+                or F.shape[1:] != (3,) or len(F) == 0:
+            _fail(mesh_path, f"holds no triangles ({len(V)} vertices, {len(F)} faces) {named}")
         # Exporters split vertices at UV seams: merge by position for a closed surface.
         V, inv = np.unique(np.round(V, 9), axis=0, return_inverse=True)
         F = inv.reshape(-1)[F]
@@ -97,11 +118,13 @@ def _mesh(path: Path, doc: dict):
             _fail(path, f"vertices/faces are not numeric arrays ({e})")
     else:
         _fail(path, "needs 'mesh: <file>' or inline 'vertices' and 'faces'")
+    if mesh_path is not None:
+        return V, F, mesh_path
     if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
         _fail(path, f"vertices must be an (n, 3) array, got shape {V.shape}")
     if F.ndim != 2 or F.shape[1] != 3 or len(F) == 0:
         _fail(path, f"faces must be an (m, 3) array of triangles, got shape {F.shape}")
-    return V, F
+    return V, F, None
 
 
 def check_surface(path, V: np.ndarray, F: np.ndarray) -> None:
@@ -130,15 +153,21 @@ def check_surface(path, V: np.ndarray, F: np.ndarray) -> None:
                     "to face outwards")
 
 
-def _skeleton(path: Path, doc: dict, scale: float, V=None, F=None) -> Skeleton:
+def _skeleton(path: Path, doc: dict, scale: float, V=None, F=None,
+              verbose: bool = True) -> Skeleton:
     if "template" in doc and "joints" not in doc and V is not None:
         # No hand-placed joints: embed a template skeleton in the (scaled) mesh.
-        from ..rigging.embed import embed_skeleton
+        from ..rigging.embed import fit_template
         try:
-            return embed_skeleton(V, F, str(doc["template"]), up=doc.get("up"),
-                                  forward=doc.get("forward"))
+            emb = fit_template(V, F, str(doc["template"]), up=doc.get("up"),
+                               forward=doc.get("forward"))
         except ValueError as e:
             _fail(path, f"template '{doc['template']}': {e}")
+        if not emb.passed:
+            _fail(path, emb.failure())
+        if verbose:
+            print(f"[skin_node] {path}: {emb.summary()}", file=sys.stderr, flush=True)
+        return emb.skeleton
     joints = doc.get("joints")
     if not isinstance(joints, list) or not joints:
         _fail(path, "needs a non-empty 'joints' list")

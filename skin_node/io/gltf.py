@@ -42,13 +42,26 @@ The file is parsed with ``pygltflib`` (structure) and decoded with numpy
 * **Weights**: ``JOINTS_0/WEIGHTS_0`` (and ``_1`` sets, if present), as
   (n, k) joint indices in the *skeleton's* order and renormalised values.
   Vertices merged from several file vertices take the mean of their weights.
-* **Animation**: :func:`gltf_clip` samples an animation at a fixed rate
-  (LINEAR: lerp / slerp; STEP: hold; CUBICSPLINE: the key values, tangents
-  ignored) and converts it to the project's pose channels (root translation
-  and per-joint Euler ``R = Rz Ry Rx`` of ``W_parent^T W_j Rrest_j^T``, made
-  continuous in time). Animated translations of non-root joints and all
-  scales are ignored (the skeleton is rigid); the largest ignored offset
-  change is reported in :attr:`GltfClip.ignored_translation`.
+* **Animation**: :func:`gltf_clip` samples an animation at any rate, as the
+  glTF specification interpolates (LINEAR: lerp, and slerp for rotations;
+  STEP: hold the key before; CUBICSPLINE: cubic Hermite through the keys
+  with the file's in- and out-tangents scaled by the key interval,
+  rotations normalised; before the first key and after the last, the end
+  key), evaluates every node's world matrix, and converts the joints'
+  world rotations to the project's pose channels exactly: the root's
+  translation, and per joint the Euler angles ``R = Rz Ry Rx`` of
+  ``W_parent^T W_j Rrest_j^T`` (so the skeleton posed from them has the
+  file's world rotations, animated nodes between joints included), made
+  continuous in time. Animated translations of non-root joints and all
+  scales are not followed (the skeleton is rigid): the largest change of a
+  joint's offset from its parent is reported in
+  :attr:`GltfClip.ignored_translation` (3 mm on CesiumMan's walk, under
+  0.003 mm on RiggedFigure and RiggedSimple).
+
+:func:`load_gltf_scene` reads every mesh of the scene instead (skinned meshes
+on any number of skins joined into one skeleton, meshes without a skin as
+rigid parts of the joint above them, each part reported with its vertex count,
+open or closed); it is not yet what :func:`~skin_node.load_character` uses.
 
 Errors are :class:`~skin_node.io.character_file.CharacterFileError`
 (a ``ValueError``) whose message starts with the file path.
@@ -63,6 +76,7 @@ from urllib.parse import unquote
 
 import numpy as np
 
+from ..builtin.clips import Clip
 from ..skeleton import Skeleton
 from .character_file import CharacterFileError, check_surface
 
@@ -108,14 +122,33 @@ class _Reader:
             self._buffers[i] = bytes(data)
         return self._buffers[i]
 
+    def _view(self, view: int, offset: int, dt, width: int, count: int, what: str,
+              strided: bool = True) -> np.ndarray:
+        """(count, width) elements of ``dt`` from buffer view ``view`` at ``offset``."""
+        g = self.g
+        if not 0 <= view < len(g.bufferViews):
+            _fail(self.path, f"{what}: buffer view {view} does not exist")
+        bv = g.bufferViews[view]
+        data = self.buffer(bv.buffer)
+        start = (bv.byteOffset or 0) + (offset or 0)
+        item = np.dtype(dt).itemsize * width
+        stride = (bv.byteStride or item) if strided else item
+        need = start + (count - 1) * stride + item if count else start
+        if need > len(data) or need > (bv.byteOffset or 0) + bv.byteLength:
+            _fail(self.path, f"{what}: data runs past the end of buffer view {view}")
+        raw = np.frombuffer(data, dtype=np.uint8, count=max(need - start, 0), offset=start)
+        if stride == item:
+            return raw[:count * item].view(dt).reshape(count, width)
+        rows = np.lib.stride_tricks.as_strided(raw, (count, item), (stride, 1))
+        return np.ascontiguousarray(rows).view(dt).reshape(count, width)
+
     def read(self, index: int | None, what: str) -> np.ndarray:
-        """Accessor ``index`` as a float64 or int64 array of shape (count, width)."""
+        """Accessor ``index`` as a float64 or int64 array of shape (count, width),
+        sparse substitution applied and normalised integers mapped to [-1, 1]."""
         g = self.g
         if index is None or not 0 <= index < len(g.accessors):
             _fail(self.path, f"{what}: accessor {index} does not exist")
         acc = g.accessors[index]
-        if acc.sparse is not None:
-            _fail(self.path, f"{what}: sparse accessors are not supported")
         dt = _COMPONENTS.get(acc.componentType)
         width = _WIDTH.get(acc.type)
         if dt is None or width is None:
@@ -124,24 +157,24 @@ class _Reader:
         if acc.bufferView is None:
             out = np.zeros((count, width), dtype=dt)
         else:
-            bv = g.bufferViews[acc.bufferView]
-            data = self.buffer(bv.buffer)
-            start = (bv.byteOffset or 0) + (acc.byteOffset or 0)
-            item = np.dtype(dt).itemsize * width
-            stride = bv.byteStride or item
-            need = start + (count - 1) * stride + item if count else start
-            if need > len(data) or need > (bv.byteOffset or 0) + bv.byteLength:
-                _fail(self.path, f"{what}: accessor {index} runs past the end of its buffer")
-            raw = np.frombuffer(data, dtype=np.uint8, count=max(need - start, 0), offset=start)
-            if stride == item:
-                out = raw[:count * item].view(dt).reshape(count, width)
-            else:
-                rows = np.lib.stride_tricks.as_strided(raw, (count, item), (stride, 1))
-                out = np.ascontiguousarray(rows).view(dt).reshape(count, width)
+            out = self._view(acc.bufferView, acc.byteOffset, dt, width, count, what).copy()
+        if acc.sparse is not None:
+            sp = acc.sparse
+            idt = _COMPONENTS.get(sp.indices.componentType)
+            if idt not in (np.uint8, np.uint16, np.uint32):
+                _fail(self.path, f"{what}: sparse indices of type {sp.indices.componentType}")
+            n = int(sp.count)
+            where = self._view(sp.indices.bufferView, sp.indices.byteOffset, idt, 1, n,
+                               what, strided=False).ravel().astype(np.int64)
+            if n and (where.min() < 0 or where.max() >= count or np.any(np.diff(where) <= 0)):
+                _fail(self.path, f"{what}: sparse indices must increase within 0..{count - 1}")
+            out[where] = self._view(sp.values.bufferView, sp.values.byteOffset, dt, width, n,
+                                    what, strided=False)
         if dt == np.float32:
             return out.astype(np.float64)
         if acc.normalized:
-            return out.astype(np.float64) / float(np.iinfo(dt).max)
+            x = out.astype(np.float64) / float(np.iinfo(dt).max)
+            return np.maximum(x, -1.0) if np.issubdtype(dt, np.signedinteger) else x
         return out.astype(np.int64)
 
 
@@ -193,25 +226,22 @@ def _rotation_angle(R: np.ndarray) -> np.ndarray:
 
 # --------------------------------------------------------------- the result
 @dataclass
-class GltfClip:
-    """An animation of the file as project pose channels.
+class GltfClip(Clip):
+    """An animation of the file as project pose channels (a :class:`Clip`).
 
     Attributes
     ----------
     name : str
     channel_names : list of str
     frames : (T, C) float
-        Root translation (metres) then rx, ry, rz per joint (radians).
+        Root translation (metres) then rx, ry, rz per joint (radians); frame
+        ``k`` is the animation at time ``k / fps``, from 0 to its last key.
     fps : float
     ignored_translation : float
-        Largest change of a non-root joint's offset that the rigid skeleton
-        cannot follow, metres (0 for CesiumMan's walk up to float noise).
+        Largest change of a non-root joint's offset from its parent that the
+        rigid skeleton cannot follow, metres.
     """
 
-    name: str
-    channel_names: list
-    frames: np.ndarray
-    fps: float
     ignored_translation: float = 0.0
 
 
@@ -275,7 +305,8 @@ class GltfCharacter:
 
     @property
     def animation_names(self) -> list:
-        return [a.name or f"animation{i}" for i, a in enumerate(self._gltf.animations or [])]
+        """Names of the file's animations (``animation<k>`` for unnamed ones)."""
+        return _animation_names(self._gltf)
 
     def clip(self, which: int | str = 0, fps: float = 30.0) -> GltfClip:
         """:func:`gltf_clip` of this character."""
@@ -377,6 +408,59 @@ def _merge_by_position(V: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarra
     return vmap, Vm
 
 
+def _mesh_primitives(path: Path, rd: _Reader, g, node: int, skinned: bool):
+    """(positions (p, 3), triangles (t, 3), joints (p, k) or None, weights (p, k) or
+    None) of every triangle primitive of node ``node``'s mesh; with ``skinned``
+    each must have JOINTS_0/WEIGHTS_0 (and any further sets)."""
+    mi = g.nodes[node].mesh
+    if not 0 <= mi < len(g.meshes):
+        _fail(path, f"node {node} refers to mesh {mi}, which does not exist")
+    for pk, prim in enumerate(g.meshes[mi].primitives):
+        where = f"mesh {mi} primitive {pk}"
+        if prim.mode not in (None, 4):
+            _fail(path, f"{where} has mode {prim.mode}; only triangles (mode 4) are supported")
+        at = prim.attributes
+        if at.POSITION is None:
+            _fail(path, f"{where} has no POSITION")
+        P = rd.read(at.POSITION, f"{where} POSITION")
+        if P.shape[1] != 3:
+            _fail(path, f"{where} POSITION is not VEC3")
+        idx = rd.read(prim.indices, f"{where} indices").ravel() if prim.indices is not None \
+            else np.arange(len(P))
+        if len(idx) % 3:
+            _fail(path, f"{where}: {len(idx)} indices is not a multiple of 3")
+        if len(idx) and (idx.min() < 0 or idx.max() >= len(P)):
+            _fail(path, f"{where}: indices reach vertex {idx.max()} of {len(P)}")
+        if not skinned:
+            yield P, idx.reshape(-1, 3), None, None
+            continue
+        sets = []
+        for k in range(4):
+            ja, wa = getattr(at, f"JOINTS_{k}", None), getattr(at, f"WEIGHTS_{k}", None)
+            if ja is None and wa is None:
+                continue
+            if ja is None or wa is None:
+                _fail(path, f"{where} has JOINTS_{k} without WEIGHTS_{k} or the reverse")
+            sets.append((rd.read(ja, f"{where} JOINTS_{k}"),
+                         rd.read(wa, f"{where} WEIGHTS_{k}").astype(np.float64)))
+        if not sets:
+            _fail(path, f"{where} has no JOINTS_0/WEIGHTS_0: the mesh is not skinned")
+        ji = np.concatenate([a for a, _ in sets], axis=1)
+        wv = np.concatenate([b for _, b in sets], axis=1)
+        if ji.shape != wv.shape or len(ji) != len(P):
+            _fail(path, f"{where}: JOINTS/WEIGHTS do not match POSITION in size")
+        yield P, idx.reshape(-1, 3), ji, wv
+
+
+def _open(path) -> tuple:
+    """(path, document, reader, parent node of every node) of a glTF file with nodes."""
+    path = Path(path)
+    g = _read_document(path)
+    if not g.nodes:
+        _fail(path, "has no nodes (no mesh and no skeleton)")
+    return path, g, _Reader(path, g), _parents_of_nodes(path, g)
+
+
 def load_gltf(path: str | Path) -> GltfCharacter:
     """Read a skinned glTF 2.0 character.
 
@@ -398,12 +482,7 @@ def load_gltf(path: str | Path) -> GltfCharacter:
         coordinates, or a surface that is open, non-manifold or inside out
         even after merging seam vertices.
     """
-    path = Path(path)
-    g = _read_document(path)
-    rd = _Reader(path, g)
-    if not g.nodes:
-        _fail(path, "has no nodes (no mesh and no skeleton)")
-    parent = _parents_of_nodes(path, g)
+    path, g, rd, parent = _open(path)
     if not g.skins:
         _fail(path, "has no skin: a skinned mesh with JOINTS_0/WEIGHTS_0 is needed")
     mesh_nodes = [i for i, n in enumerate(g.nodes) if n.mesh is not None and n.skin == 0]
@@ -491,43 +570,9 @@ def load_gltf(path: str | Path) -> GltfCharacter:
     Vf, Ff, Jidx, Jw = [], [], [], []
     nv = 0
     for mi in mesh_nodes:
-        mesh = g.meshes[g.nodes[mi].mesh] if 0 <= g.nodes[mi].mesh < len(g.meshes) else None
-        if mesh is None:
-            _fail(path, f"node {mi} refers to mesh {g.nodes[mi].mesh}, which does not exist")
-        for pk, prim in enumerate(mesh.primitives):
-            if prim.mode not in (None, 4):
-                _fail(path, f"mesh {g.nodes[mi].mesh} primitive {pk} has mode {prim.mode}; "
-                            "only triangles (mode 4) are supported")
-            at = prim.attributes
-            where = f"mesh {g.nodes[mi].mesh} primitive {pk}"
-            if at.POSITION is None:
-                _fail(path, f"{where} has no POSITION")
-            P = rd.read(at.POSITION, f"{where} POSITION")
-            if P.shape[1] != 3:
-                _fail(path, f"{where} POSITION is not VEC3")
-            idx = rd.read(prim.indices, f"{where} indices").ravel() if prim.indices is not None \
-                else np.arange(len(P))
-            if len(idx) % 3:
-                _fail(path, f"{where}: {len(idx)} indices is not a multiple of 3")
-            if len(idx) and (idx.min() < 0 or idx.max() >= len(P)):
-                _fail(path, f"{where}: indices reach vertex {idx.max()} of {len(P)}")
-            sets = []
-            for s in range(4):
-                ja, wa = getattr(at, f"JOINTS_{s}", None), getattr(at, f"WEIGHTS_{s}", None)
-                if ja is None and wa is None:
-                    continue
-                if ja is None or wa is None:
-                    _fail(path, f"{where} has JOINTS_{s} without WEIGHTS_{s} or the reverse")
-                sets.append((rd.read(ja, f"{where} JOINTS_{s}"),
-                             rd.read(wa, f"{where} WEIGHTS_{s}").astype(np.float64)))
-            if not sets:
-                _fail(path, f"{where} has no JOINTS_0/WEIGHTS_0: the mesh is not skinned")
-            ji = np.concatenate([a for a, _ in sets], axis=1)
-            wv = np.concatenate([b for _, b in sets], axis=1)
-            if ji.shape != wv.shape or len(ji) != len(P):
-                _fail(path, f"{where}: JOINTS/WEIGHTS do not match POSITION in size")
+        for P, tri, ji, wv in _mesh_primitives(path, rd, g, mi, skinned=True):
             Vf.append(P)
-            Ff.append(idx.reshape(-1, 3) + nv)
+            Ff.append(tri + nv)
             Jidx.append(ji)
             Jw.append(wv)
             nv += len(P)
@@ -600,6 +645,15 @@ def _leaf_tips(P: np.ndarray, R: np.ndarray, parents: np.ndarray, V: np.ndarray,
     return tips
 
 
+def _animation_names(g) -> list:
+    return [a.name or f"animation{i}" for i, a in enumerate(g.animations or [])]
+
+
+def gltf_animation_names(path: str | Path) -> list:
+    """Names of a glTF file's animations, reading only its JSON (no mesh or skin)."""
+    return _animation_names(_read_document(Path(path)))
+
+
 def load_gltf_character(path: str | Path):
     """``(V, F, skeleton)`` of a skinned glTF file, as :func:`load_character_file` returns."""
     c = load_gltf(path)
@@ -609,13 +663,41 @@ def load_gltf_character(path: str | Path):
 # ---------------------------------------------------------------- animation
 def _sample(times: np.ndarray, values: np.ndarray, t: np.ndarray, interp: str,
             rotation: bool) -> np.ndarray:
-    """Values of one animation sampler at times ``t``."""
-    if interp == "CUBICSPLINE":        # (in-tangent, value, out-tangent) per key
-        values = values.reshape(len(times), 3, -1)[:, 1]
-    i = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 1)
-    i1 = np.minimum(i + 1, len(times) - 1)
+    """Values of one animation sampler at times ``t``, as glTF 2.0 interpolates.
+
+    Parameters
+    ----------
+    times : (K,) float
+        Key times, seconds, increasing.
+    values : (K, w) float, or (3K, w) for CUBICSPLINE
+        Key values; CUBICSPLINE stores (in-tangent, value, out-tangent) per key.
+    t : (T,) float
+        Sample times; before the first key and after the last the end key holds.
+    interp : str
+        ``LINEAR``, ``STEP`` or ``CUBICSPLINE``.
+    rotation : bool
+        Quaternions (x, y, z, w): LINEAR is a slerp, results are unit length.
+
+    Returns
+    -------
+    (T, w) float
+    """
+    K = len(times)
+    i = np.clip(np.searchsorted(times, t, side="right") - 1, 0, K - 1)
+    i1 = np.minimum(i + 1, K - 1)
     dt = np.maximum(times[i1] - times[i], 1e-12)
     u = np.clip((t - times[i]) / dt, 0.0, 1.0)[:, None]
+    if interp == "CUBICSPLINE":
+        # p(u) = h00 v_k + h10 dt b_k + h01 v_k+1 + h11 dt a_k+1 (glTF 2.0, Appendix C)
+        key = values.reshape(K, 3, -1)
+        a, v, b = key[:, 0], key[:, 1], key[:, 2]
+        u2, u3 = u * u, u * u * u
+        h00, h10 = 2 * u3 - 3 * u2 + 1, u3 - 2 * u2 + u
+        h01, h11 = -2 * u3 + 3 * u2, u3 - u2
+        d = dt[:, None]
+        p = h00 * v[i] + h10 * d * b[i] + h01 * v[i1] + h11 * d * a[i1]
+        p = np.where((i == i1)[:, None], v[i], p)     # past the last key: hold it
+        return p / np.linalg.norm(p, axis=1, keepdims=True) if rotation else p
     if interp == "STEP":
         u = np.zeros_like(u)
     a, b = values[i], values[i1]
@@ -644,7 +726,8 @@ def gltf_clip(char: GltfCharacter, which: int | str = 0, fps: float = 30.0) -> G
     which : int or str
         Animation index or name.
     fps : float
-        Sampling rate; frames run from the first to the last key inclusive.
+        Sampling rate (any, > 0); frame ``k`` is time ``k / fps``, from 0 to the
+        last key.
 
     Returns
     -------
@@ -662,6 +745,8 @@ def gltf_clip(char: GltfCharacter, which: int | str = 0, fps: float = 30.0) -> G
     which = int(which)
     if not 0 <= which < len(anims):
         _fail(path, f"animation {which} does not exist (the file has {len(anims)})")
+    if not fps > 0:
+        _fail(path, f"animation sampling rate must be > 0, got {fps}")
     anim = anims[which]
     rd = _Reader(path, g)
     N = len(g.nodes)
@@ -678,9 +763,16 @@ def gltf_clip(char: GltfCharacter, which: int | str = 0, fps: float = 30.0) -> G
         vals = rd.read(smp.output, "animation output")
         if len(times) == 0:
             continue
+        interp = smp.interpolation or "LINEAR"
+        per_key = 3 if interp == "CUBICSPLINE" else 1
+        if interp not in ("LINEAR", "STEP", "CUBICSPLINE") or len(vals) != per_key * len(times):
+            _fail(path, f"animation '{names[which]}' sampler {ch.sampler}: {interp} with "
+                        f"{len(times)} keys needs {per_key * len(times)} values, has {len(vals)}")
+        if np.any(np.diff(times) < 0):
+            _fail(path, f"animation '{names[which]}' sampler {ch.sampler}: key times decrease")
         if g.nodes[ch.target.node].matrix is not None:
             _fail(path, f"node {ch.target.node} is animated but has a matrix (glTF forbids it)")
-        tracks.append((ch.target.node, ch.target.path, times, vals, smp.interpolation or "LINEAR"))
+        tracks.append((ch.target.node, ch.target.path, times, vals, interp))
         t_end = max(t_end, float(times.max()))
     n_frames = int(np.floor(t_end * fps + 1e-6)) + 1
     t = np.arange(n_frames) / fps
@@ -735,3 +827,353 @@ def _topological(parent: np.ndarray) -> list:
             seen[k] = True
             order.append(k)
     return order
+
+
+# ------------------------------------------------------- whole scenes (parts)
+@dataclass
+class GltfPart:
+    """One mesh of a glTF scene as a part of the character (:func:`load_gltf_scene`).
+
+    Attributes
+    ----------
+    name : str
+        The mesh node's name (``node<k>`` when it has none).
+    node, mesh : int
+        glTF node and mesh index.
+    kind : str
+        ``"skinned"`` (bound to a skin's joints) or ``"rigid"`` (carried whole
+        by one joint, or ``"static"`` when no joint is above it).
+    V : (n, 3) float
+        Rest surface in the project's world (metres, z up), merged by position.
+    F : (m, 3) int
+    vertex_map : (n_file,) int
+        Merged index of every file vertex of the part.
+    open_edges : int
+        Edges with one triangle (0: closed); ``closed`` says the same.
+    skin : int or None
+        The skin of a skinned part.
+    Widx, Wval : (n, k) int, float or None
+        A skinned part's file weights, skeleton joint indices, rows summing to 1.
+    joint : int
+        The skeleton joint a rigid part follows (-1: static).
+    local : (4, 4) float or None
+        A rigid part's mesh frame in its joint's bind frame: posed points are
+        ``G_joint @ local @ p_mesh``.
+    """
+
+    name: str
+    node: int
+    mesh: int
+    kind: str
+    V: np.ndarray
+    F: np.ndarray
+    vertex_map: np.ndarray
+    open_edges: int
+    skin: int | None = None
+    Widx: np.ndarray | None = None
+    Wval: np.ndarray | None = None
+    joint: int = -1
+    local: np.ndarray | None = None
+
+    @property
+    def closed(self) -> bool:
+        return self.open_edges == 0
+
+    @property
+    def n_file_vertices(self) -> int:
+        return len(self.vertex_map)
+
+
+@dataclass
+class GltfScene:
+    """Every mesh of a glTF scene on one skeleton (:func:`load_gltf_scene`).
+
+    Attributes
+    ----------
+    path : Path
+    skeleton : Skeleton
+        The joints of every skin, joined (a joint two skins share is one
+        joint), under one root; ``q = 0`` is the bind pose.
+    joint_nodes : (J,) int
+        glTF node of every skeleton joint.
+    parts : list of GltfPart
+    warnings : list of str
+        Disagreements kept rather than refused (a joint two skins bind
+        differently: the first skin's bind is used).
+    """
+
+    path: Path
+    skeleton: Skeleton
+    joint_nodes: np.ndarray
+    parts: list
+    warnings: list = field(default_factory=list)
+    _gltf: object = field(default=None, repr=False)
+
+    @property
+    def animation_names(self) -> list:
+        return _animation_names(self._gltf)
+
+    def clip(self, which: int | str = 0, fps: float = 30.0) -> GltfClip:
+        """:func:`gltf_clip` of the joined skeleton."""
+        return gltf_clip(self, which, fps)
+
+    def posed(self, q: np.ndarray) -> list:
+        """(n, 3) points of every part under pose ``q``: skinned parts by linear
+        blend skinning with the file's weights, rigid ones by their joint."""
+        M = self.skeleton.skinning_matrices(q)
+        out = []
+        for p in self.parts:
+            Vh = np.c_[p.V, np.ones(len(p.V))]
+            if p.kind == "skinned":
+                X = np.einsum("nk,nkij,nj->ni", p.Wval, M[p.Widx], Vh)[:, :3]
+            elif p.joint >= 0:
+                X = Vh @ M[p.joint].T[:, :3]
+            else:
+                X = p.V.copy()
+            out.append(X)
+        return out
+
+    def report(self) -> list:
+        """One line per part: vertices, closed or open, skinned or rigid (and on what)."""
+        names = self.skeleton.names
+        lines = []
+        for p in self.parts:
+            on = (f"skinned on skin {p.skin}" if p.kind == "skinned" else
+                  f"rigid on joint '{names[p.joint]}'" if p.kind == "rigid" else
+                  "static (no joint above it)")
+            shape = "closed" if p.closed else f"open ({p.open_edges} edges with one triangle)"
+            lines.append(f"part '{p.name}' (node {p.node}, mesh {p.mesh}): {on}, {len(p.V)} "
+                         f"vertices ({p.n_file_vertices} in the file), {len(p.F)} triangles, "
+                         f"{shape}")
+        return lines
+
+
+def _open_edges(F: np.ndarray) -> int:
+    E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(E, axis=0, return_counts=True)
+    return int((counts == 1).sum())
+
+
+def _scene_nodes(g) -> list:
+    """Nodes of the default scene (all nodes when the file has no scene)."""
+    if not g.scenes:
+        return list(range(len(g.nodes)))
+    out, todo = [], list(g.scenes[g.scene or 0].nodes or [])
+    while todo:
+        i = todo.pop()
+        out.append(i)
+        todo.extend(g.nodes[i].children or [])
+    return sorted(out)
+
+
+def load_gltf_scene(path: str | Path) -> GltfScene:
+    """Every mesh of a glTF file's scene, on one skeleton.
+
+    * **Skinned meshes** on any number of skins: the skins' joints are joined
+      into one skeleton (a joint's parent is its nearest ancestor node that is
+      a joint of any skin; several trees are joined under their nearest common
+      ancestor node, which becomes the root). A joint's bind pose comes from
+      the inverse bind matrices of the first skin that lists it (another
+      skin's differing by more than 0.1 mm or 1e-3 rad is reported in
+      :attr:`GltfScene.warnings`); a joint no skin lists (the common
+      ancestor), from the node hierarchy's rest pose. Each part's vertices are
+      in its skin's space, as :func:`load_gltf` takes them.
+    * **Meshes without a skin** are rigid parts of the joint nearest above
+      their node (the node itself when it is a joint), with their mesh frame
+      in that joint's bind frame (an animation of non-joint nodes between the
+      two is not followed); with no joint above them they are static. Without
+      any skin (a robot of rigid links), the mesh nodes and every node above
+      them are the joints, each link following its own node.
+    * Each part is merged by position on its own and reported open or closed;
+      nothing is refused for being open (that is for the caller to decide).
+
+    Raises
+    ------
+    CharacterFileError
+        ``"<path>: <problem>"`` for an unreadable file, a broken node
+        hierarchy, no mesh in the scene, joints with no common ancestor, bad
+        primitives, weights or non-uniformly scaled joints.
+    """
+    path, g, rd, parent = _open(path)
+    in_scene = _scene_nodes(g)
+    mesh_nodes = [i for i in in_scene if g.nodes[i].mesh is not None]
+    if not mesh_nodes:
+        _fail(path, "its scene has no mesh")
+    skins = sorted({g.nodes[i].skin for i in mesh_nodes if g.nodes[i].skin is not None})
+    for s in skins:
+        if not 0 <= s < len(g.skins or []) or not g.skins[s].joints:
+            _fail(path, f"skin {s} does not exist or has no joints")
+    joints = []
+    for s in skins:
+        joints += [int(j) for j in g.skins[s].joints if int(j) not in joints]
+    if not skins:            # rigid links only: the mesh nodes and those above are joints
+        for i in mesh_nodes:
+            a = i
+            while a >= 0:
+                if a not in joints:
+                    joints.append(int(a))
+                a = parent[a]
+    if not joints:
+        _fail(path, "no skin and no node above its meshes: nothing to pose")
+    bad = [j for j in joints if not 0 <= j < len(g.nodes)]
+    if bad:
+        _fail(path, f"skins list joints {bad} that are not nodes of the file")
+
+    def ancestors(i):
+        out = []
+        while i >= 0:
+            out.append(int(i))
+            i = parent[i]
+        return out
+
+    def joint_parent(n):
+        a = parent[n]
+        while a >= 0 and a not in joints:
+            a = parent[a]
+        return int(a)
+
+    roots = [j for j in joints if joint_parent(j) < 0]
+    if len(roots) > 1:      # join the trees under their nearest common ancestor node
+        common = set(ancestors(roots[0]))
+        for r in roots[1:]:
+            common &= set(ancestors(r))
+        if not common:
+            _fail(path, f"the joints form {len(roots)} trees (roots: nodes {roots}) with no "
+                        "common ancestor node; one skeleton needs one root")
+        joints.append(max(common, key=lambda a: len(ancestors(a))))
+    root = next(j for j in joints if joint_parent(j) < 0)
+    order = [root]
+    for j in order:             # breadth first: parents before children
+        order.extend(k for k in joints if joint_parent(k) == j)
+    index = {n: k for k, n in enumerate(order)}
+    parents = np.array([-1 if joint_parent(n) < 0 else index[joint_parent(n)] for n in order])
+    # Names as load_gltf gives them: an unnamed joint is joint<k>, k its index in
+    # the (first) skin listing it, as in JOINTS_0; other nodes node<n>.
+    in_skin = {}
+    for s in skins:
+        for k, n in enumerate(g.skins[s].joints):
+            in_skin.setdefault(int(n), k)
+    names, used = [], set()
+    for n in order:
+        k = in_skin.get(n, n)
+        nm = g.nodes[n].name or (f"joint{k}" if n in in_skin else f"node{n}")
+        nm = nm if nm not in used else f"{nm}_{k}"
+        used.add(nm)
+        names.append(nm)
+
+    # ---- bind pose: the first skin's IBMs, else the node's rest
+    Wn = _world_matrices(g, parent)
+    Cz = np.eye(4)
+    Cz[:3, :3] = Y_UP_TO_Z_UP
+    J = len(order)
+    B = np.array([Cz @ Wn[n] for n in order])
+    bound = np.zeros(J, dtype=bool)
+    skin_space, warn = {}, []
+    for s in skins:
+        sj = [int(j) for j in g.skins[s].joints]
+        if g.skins[s].inverseBindMatrices is not None:
+            IBM = rd.read(g.skins[s].inverseBindMatrices, f"skin {s} inverseBindMatrices")
+            if IBM.shape != (len(sj), 16):
+                _fail(path, f"skin {s}: {len(IBM)} inverse bind matrices for {len(sj)} joints")
+            IBM = IBM.reshape(-1, 4, 4).transpose(0, 2, 1)
+        else:
+            IBM = np.tile(np.eye(4), (len(sj), 1, 1))
+        if not np.all(np.isfinite(IBM)):
+            _fail(path, f"skin {s}: inverse bind matrices contain NaN or Inf")
+        top = next(j for j in sj if all(a not in sj for a in ancestors(j)[1:]))
+        to_world = Cz @ (Wn[parent[top]] if parent[top] >= 0 else np.eye(4))
+        skin_space[s] = to_world
+        try:
+            Bs = to_world @ np.linalg.inv(IBM)
+        except np.linalg.LinAlgError:
+            _fail(path, f"skin {s}: an inverse bind matrix is singular")
+        for k, n in enumerate(sj):
+            j = index[n]
+            if not bound[j]:
+                B[j], bound[j] = Bs[k], True
+                continue
+            dp = float(np.abs(B[j][:3, 3] - Bs[k][:3, 3]).max())
+            dr = float(_rotation_angle(_orthonormal(B[j][:3, :3])[0].T
+                                       @ _orthonormal(Bs[k][:3, :3])[0]))
+            if dp > _MISMATCH_POS or dr > _MISMATCH_ROT:
+                warn.append(f"joint '{names[j]}': skin {s} binds it {dp * 1000:.2f} mm / "
+                            f"{np.degrees(dr):.2f} deg away from the first skin's bind; "
+                            "using the first")
+    Rb, sv = _orthonormal(B[:, :3, :3])
+    if np.any(np.abs(sv / np.maximum(sv.mean(1, keepdims=True), 1e-12) - 1.0) > 1e-2):
+        _fail(path, "joints have non-uniform scale in the bind pose; rigid skeletons only")
+    Pb = B[:, :3, 3]
+    Bn = np.tile(np.eye(4), (J, 1, 1))      # the bind frames, rotations orthonormal
+    Bn[:, :3, :3], Bn[:, :3, 3] = Rb, Pb
+    rest_rot = np.array([Rb[j] if parents[j] < 0 else Rb[parents[j]].T @ Rb[j]
+                         for j in range(J)])
+
+    # ---- parts
+    parts = []
+    for i in mesh_nodes:
+        node = g.nodes[i]
+        skinned = node.skin is not None
+        prims = list(_mesh_primitives(path, rd, g, i, skinned=skinned))
+        P = np.concatenate([p for p, _, _, _ in prims])
+        off = np.cumsum([0] + [len(p) for p, _, _, _ in prims])
+        Ff = np.concatenate([t + o for (_, t, _, _), o in zip(prims, off)]).astype(np.int64)
+        if not np.all(np.isfinite(P)):
+            _fail(path, f"mesh {node.mesh}: vertices have NaN or Inf coordinates")
+        Mw = skin_space[node.skin] if skinned else Cz @ Wn[i]
+        Vw = P @ Mw[:3, :3].T + Mw[:3, 3]
+        diag = float(np.linalg.norm(Vw.max(0) - Vw.min(0))) if len(Vw) else 0.0
+        vmap, V = _merge_by_position(Vw, _MERGE_TOL * max(diag, 1e-12))
+        F = vmap[Ff]
+        F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 2] != F[:, 0])]
+        name = node.name or (g.meshes[node.mesh].name if g.meshes[node.mesh].name else f"node{i}")
+        part = GltfPart(name, i, int(node.mesh), "skinned" if skinned else "rigid", V, F, vmap,
+                        _open_edges(F) if len(F) else 0)
+        if skinned:
+            sj = [index[int(n)] for n in g.skins[node.skin].joints]
+            ji = np.concatenate([a for _, _, a, _ in prims])
+            wv = np.concatenate([b for _, _, _, b in prims])
+            if not np.all(np.isfinite(wv)) or np.any(wv < -1e-6):
+                _fail(path, f"mesh {node.mesh}: WEIGHTS contain NaN, Inf or negative values")
+            out = (ji < 0) | (ji >= len(sj))
+            if np.any(wv[out] > 0):
+                _fail(path, f"mesh {node.mesh}: JOINTS refer to joints outside skin "
+                            f"{node.skin}'s 0..{len(sj) - 1}")
+            wsum = wv.sum(1)
+            if np.any(wsum <= 1e-9):
+                _fail(path, f"mesh {node.mesh}: {int((wsum <= 1e-9).sum())} vertices have "
+                            "all-zero weights")
+            W = np.zeros((len(V), J))
+            np.add.at(W, (np.repeat(vmap, ji.shape[1]),
+                          np.asarray(sj)[np.clip(ji, 0, len(sj) - 1)].ravel()),
+                      (wv / wsum[:, None]).ravel())
+            W /= W.sum(1, keepdims=True)
+            k = min(ji.shape[1], J)
+            part.skin = int(node.skin)
+            part.Widx = np.argsort(-W, axis=1, kind="stable")[:, :k].astype(np.int64)
+            part.Wval = np.take_along_axis(W, part.Widx, axis=1)
+        else:
+            above = i if i in index else joint_parent(i)
+            if above >= 0:
+                part.joint = index[above]
+                part.local = np.linalg.inv(Bn[part.joint]) @ (Cz @ Wn[i])
+            else:
+                part.kind, part.local = "static", Cz @ Wn[i]
+        parts.append(part)
+
+    # ---- tips of leaf joints from every part that moves with them
+    Vall = np.concatenate([p.V for p in parts])
+    Wall = np.zeros((len(Vall), J))
+    row = 0
+    for p in parts:
+        if p.kind == "skinned":
+            np.put_along_axis(Wall[row:row + len(p.V)], p.Widx, p.Wval, axis=1)
+        elif p.kind == "rigid":
+            Wall[row:row + len(p.V), p.joint] = 1.0
+        row += len(p.V)
+    tips = _leaf_tips(Pb, Rb, parents, Vall, Wall)
+    try:
+        skel = Skeleton(names, parents, Pb, rest_rotations=rest_rot, tips=tips)
+    except ValueError as e:
+        _fail(path, f"skeleton: {e}")
+    return GltfScene(path=path, skeleton=skel, joint_nodes=np.asarray(order), parts=parts,
+                     warnings=warn, _gltf=g)

@@ -1,14 +1,18 @@
-"""Automatic skeleton embedding: place a template skeleton inside a closed mesh.
+"""Automatic skeleton embedding: place a template skeleton inside a closed mesh,
+and check the fit.
 
 The paper's first set-up step (it used Baran & Popović's Pinocchio). This is a
 lighter, deterministic method in the same spirit:
 
 1. **Frame.** The template has a known forward, left and up axis (x, y, z of its
-   unit box). The mesh's left axis is its mirror-symmetry axis (tested among the
-   coordinate axes); up and forward are the other two, told apart by the
-   template's ``long_axis`` (the longer extent), the up sign by which end has
-   more separate parts (feet or hooves at the bottom) and the forward sign by the
-   template's ``forward_cue``. ``up=`` / ``forward=`` override any of this.
+   unit box). The mesh's left axis is its mirror-symmetry axis, tested among the
+   coordinate axes and the mesh's principal axes (a coordinate axis wins ties:
+   meshes are modelled in their own axes); up and forward lie in the symmetry
+   plane, along its coordinate or principal axes, told apart by the template's
+   ``long_axis`` (the longer extent), the up sign by ground contact (the end
+   with more separate parts is the bottom: feet or hooves) and the forward sign
+   by the template's ``forward_cue``. This gives up to eight candidate frames,
+   likeliest first; ``up=`` / ``forward=`` fix either or both.
 2. **Scale.** Template positions (normalised to a unit box) are scaled per axis
    to the mesh's bounding box in that frame: a first guess.
 3. **Interior.** The mesh is voxelised (ray parity along z) and a distance
@@ -26,6 +30,14 @@ lighter, deterministic method in the same spirit:
 6. **Symmetry and inside.** On a mirror-symmetric mesh, left/right pairs are
    made exactly symmetric; every joint and tip is then checked inside with the
    generalised winding number and moved to the nearest deep voxel if not.
+7. **Checks** (:func:`check_fit`): every joint inside the surface, the
+   template's ``above`` chains descending along up (head above pelvis above
+   knees above ankles), left and right limbs apart and mirror images within a
+   tolerance, every bone inside the body. The candidate frames are fitted in
+   turn until one passes; a fit that passes none is refused with one line
+   naming the failed check, its figure and the hint that would help
+   (:class:`EmbeddingError`). :meth:`Embedding.summary` gives every check's
+   figure for the start-up output.
 
 The skeleton's root gets the rest rotation whose columns are the mesh's forward,
 left and up axes, so every rotation channel turns about the template's axes
@@ -34,7 +46,8 @@ translation channels stay in world axes.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import sys
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numba
@@ -78,6 +91,9 @@ class Template:
         thickness along its medial path rises above 1.4 times its typical
         radius) instead of at a fraction of the chain: right for legs whose
         length differs a lot from the template's (a cow's stubby legs).
+    above : list of list of str
+        Chains of joints that must descend along up in a fit (``checks: above:``
+        in the file), e.g. head, pelvis, knee, ankle.
     """
 
     name: str
@@ -89,6 +105,7 @@ class Template:
     long_axis: str = "up"
     forward_cue: str = "feet"
     limb_root: np.ndarray | None = None
+    above: list = field(default_factory=list)
 
 
 def template_path(template: str | Path) -> Path:
@@ -99,9 +116,14 @@ def template_path(template: str | Path) -> Path:
     for d in TEMPLATE_DIRS + _installed_template_dirs():
         if (d / f"{template}.yaml").exists():
             return d / f"{template}.yaml"
-    known = sorted({f.stem for d in TEMPLATE_DIRS + _installed_template_dirs()
-                    if d.is_dir() for f in d.glob("*.yaml")})
-    raise ValueError(f"{template}: unknown skeleton template (known: {known}, or a YAML path)")
+    raise ValueError(f"{template}: unknown skeleton template (known: {known_templates()}, "
+                     "or a YAML path)")
+
+
+def known_templates() -> list[str]:
+    """Names of the templates shipped with the package."""
+    return sorted({f.stem for d in TEMPLATE_DIRS + _installed_template_dirs()
+                   if d.is_dir() for f in d.glob("*.yaml")})
 
 
 def _installed_template_dirs() -> tuple:
@@ -157,8 +179,16 @@ def load_template(template: str | Path) -> Template:
     cue = str(doc.get("forward_cue", "feet"))
     if long_axis not in ("up", "forward") or cue not in ("feet", "head"):
         raise ValueError(f"{path}: long_axis must be up|forward and forward_cue feet|head")
+    above = (doc.get("checks") or {}).get("above", [])
+    if not isinstance(above, list) or not all(isinstance(c, list) and len(c) >= 2
+                                              for c in above):
+        raise ValueError(f"{path}: checks: above: must be a list of joint-name lists")
+    unknown = sorted({str(n) for c in above for n in c} - set(names))
+    if unknown:
+        raise ValueError(f"{path}: checks: above: names joints {unknown} it does not list")
     t = Template(str(doc.get("name", path.stem)), names, np.array(parents), np.array(pos),
-                 np.array(tips), np.array(lim), long_axis, cue, np.array(root))
+                 np.array(tips), np.array(lim), long_axis, cue, np.array(root),
+                 [[str(n) for n in c] for c in above])
     has_child = np.zeros(len(names), bool)
     has_child[t.parents[1:]] = True
     bad = [n for n, c, tp in zip(names, has_child, t.tips) if not c and not np.isfinite(tp).all()]
@@ -214,20 +244,35 @@ def _voxelize(V, F, lo, h, shape):
     return inside
 
 
+@numba.njit(cache=True)
+def _winding_numbers(P, V, F):
+    """Generalised winding number of each point (Jacobson et al. 2013): the sum
+    over triangles of their signed solid angle over 4 pi, each by Van Oosterom
+    and Strackee's formula ``tan(omega / 2) = a . (b x c) / (|a||b||c| + (a.b)|c|
+    + (b.c)|a| + (c.a)|b|)`` with ``a, b, c`` the corners relative to the point."""
+    out = np.empty(P.shape[0])
+    for i in range(P.shape[0]):
+        total = 0.0
+        for t in range(F.shape[0]):
+            ax, ay, az = V[F[t, 0], 0] - P[i, 0], V[F[t, 0], 1] - P[i, 1], V[F[t, 0], 2] - P[i, 2]
+            bx, by, bz = V[F[t, 1], 0] - P[i, 0], V[F[t, 1], 1] - P[i, 1], V[F[t, 1], 2] - P[i, 2]
+            cx, cy, cz = V[F[t, 2], 0] - P[i, 0], V[F[t, 2], 1] - P[i, 1], V[F[t, 2], 2] - P[i, 2]
+            la = np.sqrt(ax * ax + ay * ay + az * az)
+            lb = np.sqrt(bx * bx + by * by + bz * bz)
+            lc = np.sqrt(cx * cx + cy * cy + cz * cz)
+            det = ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx)
+            den = (la * lb * lc + (ax * bx + ay * by + az * bz) * lc
+                   + (bx * cx + by * cy + bz * cz) * la + (cx * ax + cy * ay + cz * az) * lb)
+            total += np.arctan2(det, den)
+        out[i] = total / (2.0 * np.pi)
+    return out
+
+
 def winding_numbers(P: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarray:
     """(k,) generalised winding number of points ``P`` (k, 3): ~1 inside, ~0 outside."""
-    P = np.atleast_2d(P)
-    out = np.empty(len(P))
-    for s in range(0, len(P), 64):
-        a = V[F[:, 0]][None] - P[s:s + 64, None]
-        b = V[F[:, 1]][None] - P[s:s + 64, None]
-        c = V[F[:, 2]][None] - P[s:s + 64, None]
-        la, lb, lc = (np.linalg.norm(x, axis=2) for x in (a, b, c))
-        det = np.einsum("pti,pti->pt", a, np.cross(b, c))
-        den = (la * lb * lc + np.einsum("pti,pti->pt", a, b) * lc
-               + np.einsum("pti,pti->pt", b, c) * la + np.einsum("pti,pti->pt", c, a) * lb)
-        out[s:s + 64] = np.arctan2(det, den).sum(1) / (2.0 * np.pi)
-    return out
+    return _winding_numbers(np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64),
+                            np.ascontiguousarray(V, dtype=np.float64),
+                            np.ascontiguousarray(F, dtype=np.int64))
 
 
 @numba.njit(cache=True)
@@ -369,10 +414,12 @@ def _axis_arg(v, what):
     return _unit(v, what)
 
 
-def _mirror_error(V, axis, centre):
-    """Mean distance from the vertices mirrored about a plane to the surface vertices."""
+def _mirror_error(V, axis):
+    """Mean distance from the vertices mirrored about the plane normal to unit
+    ``axis`` through the middle of their extent along it to the nearest vertex."""
     from scipy.spatial import cKDTree
-    M = V - 2.0 * np.outer((V - centre) @ axis, axis)
+    s = V @ axis
+    M = V - 2.0 * np.outer(s - 0.5 * (s.min() + s.max()), axis)
     return float(cKDTree(V).query(M)[0].mean())
 
 
@@ -392,42 +439,86 @@ def _end_parts(V, F, axis, end, frac=0.06):
     return len(np.unique(lab[used])), V[sel].mean(0)
 
 
-def mesh_frame(V, F, tmpl: Template, up=None, forward=None) -> np.ndarray:
-    """(3, 3) rotation whose columns are the mesh's forward, left and up axes.
+def _principal_axes(V) -> np.ndarray:
+    """(3, 3) rows: the principal axes of the vertices, longest first."""
+    X = V - V.mean(0)
+    w, U = np.linalg.eigh(X.T @ X)
+    return U[:, ::-1].T
 
-    ``up`` / ``forward``: ``"x"``, ``"-z"``, ... or vectors; those not given are
-    detected (see the module docstring).
+
+def _left_axis(V, given=None) -> np.ndarray:
+    """The mirror-symmetry axis: among the coordinate and principal axes (those
+    perpendicular to ``given``, if any), the one whose mirror image of the
+    vertices lies nearest them. A coordinate axis within 10% of the best wins:
+    meshes are modelled in their own axes, and noise should not tilt them."""
+    cand = [(a, True) for a in _AXES] + [(a, False) for a in _principal_axes(V)]
+    if given is not None:
+        cand = [(a - (a @ given) * given, c) for a, c in cand]
+        cand = [(a / np.linalg.norm(a), c) for a, c in cand if np.linalg.norm(a) > 0.9]
+    err = [(_mirror_error(V, a), a, c) for a, c in cand]
+    best = min(e for e, _, _ in err)
+    coord = [(e, a) for e, a, c in err if c and e <= 1.1 * best + 1e-12]
+    return min(coord, key=lambda x: x[0])[1] if coord else min(err, key=lambda x: x[0])[1]
+
+
+def _plane_axes(V, left) -> tuple[np.ndarray, np.ndarray]:
+    """Two orthogonal axes spanning the plane normal to ``left`` (the coordinate
+    axes when ``left`` is one, else the principal axes of the vertices in the
+    plane), the one of larger extent first."""
+    if np.max(np.abs(left)) > 1 - 1e-9:
+        a, b = [x for x in _AXES if abs(x @ left) < 0.5]
+    else:
+        e1 = np.cross(left, _AXES[np.argmin(np.abs(left))])
+        e1 /= np.linalg.norm(e1)
+        E = np.column_stack([e1, np.cross(left, e1)])
+        P = V @ E
+        P -= P.mean(0)
+        _, U = np.linalg.eigh(P.T @ P)
+        a, b = (E @ U[:, ::-1]).T
+    return (a, b) if np.ptp(V @ a) >= np.ptp(V @ b) else (b, a)
+
+
+def _frame(forward, up) -> np.ndarray:
+    left = np.cross(up, forward)
+    return np.column_stack([forward, left / np.linalg.norm(left), up])
+
+
+def frame_candidates(V, F, tmpl: Template, up=None, forward=None) -> list[np.ndarray]:
+    """(3, 3) rotations whose columns are the mesh's forward, left and up axes,
+    the likeliest first (see the module docstring); with both ``up`` and
+    ``forward`` given, that one frame.
+
+    ``up`` / ``forward``: ``"x"``, ``"-z"``, ... or vectors.
     """
     up, forward = _axis_arg(up, "up"), _axis_arg(forward, "forward")
-    centre = 0.5 * (V.min(0) + V.max(0))
     if up is not None and forward is not None:
         forward = forward - (forward @ up) * up
         if np.linalg.norm(forward) < 1e-6:
             raise ValueError("up and forward must not be parallel")
-        forward /= np.linalg.norm(forward)
-    elif up is not None or forward is not None:
-        given = up if up is not None else forward
-        cand = [a for a in _AXES if abs(a @ given) < 0.9]
-        left = min(cand, key=lambda a: _mirror_error(V, a, centre))
-        other = np.cross(left, given)
-        other /= np.linalg.norm(other)
-        if up is not None:
-            forward = _forward_sign(V, F, tmpl, other, up)
-        else:
-            up = _up_sign(V, F, other)
-    else:
-        left = min(_AXES, key=lambda a: _mirror_error(V, a, centre))
-        rest = [a for a in _AXES if abs(a @ left) < 0.5]
-        ext = [np.ptp(V @ a) for a in rest]
-        longer, shorter = (rest[0], rest[1]) if ext[0] >= ext[1] else (rest[1], rest[0])
-        if tmpl.long_axis == "up":
-            up = _up_sign(V, F, longer)
-            forward = _forward_sign(V, F, tmpl, shorter, up)
-        else:
-            up = _up_sign(V, F, shorter)
-            forward = _forward_sign(V, F, tmpl, longer, up)
-    left = np.cross(up, forward)
-    return np.column_stack([forward, left / np.linalg.norm(left), up])
+        return [_frame(forward / np.linalg.norm(forward), up)]
+    if up is not None:
+        other = np.cross(_left_axis(V, up), up)
+        f = _forward_sign(V, F, tmpl, other / np.linalg.norm(other), up)
+        return [_frame(f, up), _frame(-f, up)]
+    if forward is not None:
+        other = np.cross(forward, _left_axis(V, forward))
+        u = _up_sign(V, F, other / np.linalg.norm(other))
+        return [_frame(forward, u), _frame(forward, -u)]
+    longer, shorter = _plane_axes(V, _left_axis(V))
+    ups = (longer, shorter) if tmpl.long_axis == "up" else (shorter, longer)
+    out = []
+    for axis in ups:                       # the template's guess of the axis first
+        u = _up_sign(V, F, axis)
+        for uu in (u, -u):                 # ... with the sign the feet tell first
+            fwd = ups[1] if axis is ups[0] else ups[0]
+            out.append(_frame(_forward_sign(V, F, tmpl, fwd, uu), uu))
+    # The forward sign is the weakest cue and no check sees it: last resort.
+    return out + [_frame(-A[:, 0], A[:, 2]) for A in out]
+
+
+def mesh_frame(V, F, tmpl: Template, up=None, forward=None) -> np.ndarray:
+    """The likeliest of :func:`frame_candidates`."""
+    return frame_candidates(V, F, tmpl, up, forward)[0]
 
 
 def _up_sign(V, F, axis):
@@ -472,9 +563,79 @@ def _smooth(P, passes=3):
     return P
 
 
+@dataclass
+class Check:
+    """One check of a fitted skeleton: its name, whether it passed, its figure
+    (what was measured, in words and numbers) and the hint that would help."""
+
+    name: str
+    passed: bool
+    figure: str
+    hint: str
+
+
+@dataclass
+class Embedding:
+    """A template skeleton fitted to a mesh, with the checks of the fit.
+
+    Attributes
+    ----------
+    skeleton : Skeleton
+    frame : (3, 3) float
+        The mesh's forward, left and up axes as columns.
+    given : tuple of str
+        Which of ``up`` / ``forward`` were given rather than detected.
+    checks : list of Check
+    tried : int
+        Orientations fitted before this one passed (or all that were tried).
+    others : list of str
+        Other templates to suggest when no orientation fitted.
+    """
+
+    template: str
+    skeleton: Skeleton
+    frame: np.ndarray
+    given: tuple
+    checks: list
+    tried: int = 1
+    others: list = field(default_factory=list)
+
+    @property
+    def passed(self) -> bool:
+        return all(c.passed for c in self.checks)
+
+    def orientation(self) -> str:
+        how = lambda k: "given" if k in self.given else "detected"  # noqa: E731
+        return (f"up {_word(self.frame[:, 2])} ({how('up')}), "
+                f"forward {_word(self.frame[:, 0])} ({how('forward')})")
+
+    def summary(self) -> str:
+        """One line: the orientation and every check's figure."""
+        tried = f", after {self.tried - 1} other orientation(s) failed" if self.tried > 1 else ""
+        return (f"template '{self.template}' embedded, {self.orientation()}{tried}; "
+                + "; ".join(f"{c.name}: {c.figure}" for c in self.checks))
+
+    def failure(self) -> str:
+        """One line: the first failed check, its figure and the hint that helps."""
+        c = next(c for c in self.checks if not c.passed)
+        tried = f" (and in {self.tried - 1} other orientation(s))" if self.tried > 1 else ""
+        other = (f"; or the mesh is no {self.template}: template: {' or '.join(self.others)}"
+                 if self.others else "")
+        return (f"template '{self.template}' does not fit this mesh, {self.orientation()}"
+                f"{tried}: check '{c.name}' failed: {c.figure}; {c.hint}{other}")
+
+
+class EmbeddingError(ValueError):
+    """A template fit that failed its checks; the message is one line."""
+
+    def __init__(self, embedding: Embedding) -> None:
+        super().__init__(embedding.failure())
+        self.embedding = embedding
+
+
 def embed_skeleton(V: np.ndarray, F: np.ndarray, template: str | Path | Template,
                    up=None, forward=None, symmetric: bool | None = None) -> Skeleton:
-    """Place a template skeleton inside a closed mesh.
+    """Place a template skeleton inside a closed mesh, checked (:func:`fit_template`).
 
     Parameters
     ----------
@@ -496,11 +657,63 @@ def embed_skeleton(V: np.ndarray, F: np.ndarray, template: str | Path | Template
     Skeleton
         The template's joints, limits and tips placed inside the mesh; the root's
         rest rotation has the mesh's forward, left and up axes as columns.
+
+    Raises
+    ------
+    EmbeddingError
+        When no orientation's fit passes its checks: one line naming the check
+        that failed, its figure and the hint that would help.
+    """
+    emb = fit_template(V, F, template, up, forward, symmetric)
+    if not emb.passed:
+        raise EmbeddingError(emb)
+    return emb.skeleton
+
+
+def fit_template(V: np.ndarray, F: np.ndarray, template: str | Path | Template,
+                 up=None, forward=None, symmetric: bool | None = None) -> Embedding:
+    """Fit a template skeleton in each candidate orientation (:func:`frame_candidates`,
+    likeliest first) until one passes its checks (:func:`check_fit`).
+
+    Returns
+    -------
+    Embedding
+        The first fit that passed, or, when none did, the likeliest one's
+        (``passed`` is False; :meth:`Embedding.failure` says why). Parameters
+        as for :func:`embed_skeleton`.
     """
     V = np.asarray(V, float)
     F = np.asarray(F, np.int64)
     tmpl = template if isinstance(template, Template) else load_template(template)
-    A = mesh_frame(V, F, tmpl, up, forward)
+    given = tuple(k for k, v in (("up", up), ("forward", forward)) if v is not None)
+    frames = frame_candidates(V, F, tmpl, up, forward)
+    vol = _Interior(V, F)
+    first = None
+    for k, A in enumerate(frames, 1):
+        raw_pos, raw_tips = _place(V, tmpl, A, vol)
+        sym = symmetric if symmetric is not None else \
+            _mirror_error(V, A[:, 1]) < 0.01 * np.linalg.norm(np.ptp(V, 0))
+        pos, tips = (_symmetrise(tmpl.names, raw_pos, raw_tips, A, V @ A) if sym
+                     else (raw_pos, raw_tips))
+        pos, tips, moved = _keep_inside(vol, V, F, pos, tips)
+        rest = np.tile(np.eye(3), (len(pos), 1, 1))
+        rest[0] = A
+        skel = Skeleton(list(tmpl.names), tmpl.parents.copy(), pos, rest_rotations=rest,
+                        tips=tips, limits=tmpl.limits.copy())
+        checks = check_fit(V, F, tmpl, skel, vol, raw_pos, moved, given)
+        emb = Embedding(tmpl.name, skel, A, given, checks, k)
+        if emb.passed:
+            return emb
+        first = first or emb
+    first.tried = len(frames)
+    if not given:       # every orientation failed: perhaps the wrong kind of body
+        first.others = [t for t in known_templates() if t != tmpl.name]
+    return first
+
+
+def _place(V, tmpl: Template, A, vol) -> tuple[np.ndarray, np.ndarray]:
+    """(J, 3) joints and tips of the template fitted in frame ``A`` (steps 2 to 5
+    of the module docstring), before symmetry and the inside check."""
     Q = V @ A                                   # template-frame coordinates
     qlo, qhi = Q.min(0), Q.max(0)
 
@@ -514,7 +727,6 @@ def embed_skeleton(V: np.ndarray, F: np.ndarray, template: str | Path | Template
         kids[par[j]].append(j)
     guess = scaled(tmpl.positions)
     tip_guess = np.where(np.isfinite(tmpl.tips), scaled(np.nan_to_num(tmpl.tips)), np.nan)
-    vol = _Interior(V, F)
     h = vol.h
 
     pos = np.full((J, 3), np.nan)
@@ -532,12 +744,6 @@ def embed_skeleton(V: np.ndarray, F: np.ndarray, template: str | Path | Template
         radius = 2.5 * vol.d[k] + 2 * h
         c = vol.section_centre(vol.pts[k], d, radius)
         pos[j] = vol.pts[vol.nearest(c)] if not _inside_voxel(vol, c) else c
-
-    def anchor_of(j):
-        a = par[j]
-        while a not in anchors:
-            a = par[a]
-        return a
 
     # Chains: from an anchor down to the next anchor or to a leaf's tip.
     for a in anchors:
@@ -574,18 +780,128 @@ def embed_skeleton(V: np.ndarray, F: np.ndarray, template: str | Path | Template
             sref, s = _arc(ref), _arc(P)
             for i, j in enumerate(chain):
                 pos[j] = _at_fraction(P, s, sref[i + 1] / max(sref[-1], 1e-12))
+    return pos, tips
 
-    if symmetric is None:
-        centre = 0.5 * (V.min(0) + V.max(0))
-        symmetric = _mirror_error(V, A[:, 1], centre) < 0.01 * np.linalg.norm(np.ptp(V, 0))
-    if symmetric:
-        pos, tips = _symmetrise(tmpl.names, pos, tips, A, Q, V, F)
 
-    pos, tips = _keep_inside(vol, V, F, pos, tips)
-    rest = np.tile(np.eye(3), (J, 1, 1))
-    rest[0] = A
-    return Skeleton(list(tmpl.names), par.copy(), pos, rest_rotations=rest, tips=tips,
-                    limits=tmpl.limits.copy())
+# ------------------------------------------------------------------ the checks
+#: Smallest drop between consecutive joints of an ``above`` chain, of the height.
+ORDER_MARGIN = 0.01
+#: Smallest left/right spacing of a limb's joint pair, of the limbs' mean radius.
+SPACING_MIN = 1.0
+#: Largest mirror mismatch of a pair before symmetrising, of the body's size.
+MIRROR_MAX = 0.05
+#: Points checked along every bone.
+BONE_SAMPLES = 9
+
+
+def _pairs(names) -> list[tuple[int, int]]:
+    idx = {n: i for i, n in enumerate(names)}
+    return [(i, idx["r_" + n[2:]]) for n, i in idx.items()
+            if n.startswith("l_") and "r_" + n[2:] in idx]
+
+
+def check_fit(V, F, tmpl: Template, skel: Skeleton, vol, raw_pos, moved: int,
+              given=()) -> list[Check]:
+    """The checks of a fitted skeleton, each with its figure.
+
+    * **inside**: every joint and tip inside the surface (generalised winding
+      number above 1/2); the figure also counts those moved in from outside.
+    * **order along up**: the template's ``above`` chains (head above pelvis
+      above knees above ankles) descend along up, each step by at least
+      :data:`ORDER_MARGIN` of the height.
+    * **left/right apart**: every ``l_*`` joint of a limb (below the joint where
+      the limb leaves the trunk) lies left of its ``r_*`` twin by at least
+      :data:`SPACING_MIN` times the limbs' mean radius there: two limbs, not
+      one limb twice (a humanoid's legs fitted into one leg of a cow).
+    * **mirror**: before symmetrising, each pair mirrors across the symmetry
+      plane within :data:`MIRROR_MAX` of the body's size.
+    * **bones inside**: :data:`BONE_SAMPLES` points along every bone inside the
+      surface, or within half a voxel outside it (a bone may graze thin skin).
+    """
+    A = skel.rest_rotations[0]
+    fwd, left, up = A.T
+    P = skel.rest_positions
+    names = skel.names
+    idx = {n: i for i, n in enumerate(names)}
+    Q = V @ A
+    ext = np.ptp(Q, 0)
+    size = float(np.linalg.norm(ext))
+    mm = lambda x: f"{1000 * x:.0f} mm"  # noqa: E731
+    want = [k for k in ("up", "forward") if k not in given]
+    example = {"up": "up: y", "forward": "forward: -z"}
+    orient = (f"say {' and '.join(w + ':' for w in want)} (e.g. "
+              f"{', '.join(example[w] for w in want)})" if want else "check up: and forward:")
+    checks = []
+
+    tips = skel.tips[np.isfinite(skel.tips).all(1)]
+    pts = np.vstack([P, tips])
+    w = winding_numbers(pts, V, F)
+    out = int((w < 0.5).sum())
+    depth = surface_distance(pts, V, F)
+    checks.append(Check("inside", out == 0,
+                        f"{len(pts) - out} of {len(pts)} joints and tips inside "
+                        f"({moved} moved in), the shallowest {mm(depth.min())} deep",
+                        "list the joints explicitly (joints:) for this mesh"))
+
+    steps = []
+    for chain in tmpl.above:
+        h = P[[idx[n] for n in chain]] @ up
+        steps += [(h[k] - h[k + 1], chain[k], chain[k + 1]) for k in range(len(chain) - 1)]
+    if steps:
+        d, a, b = min(steps)
+        checks.append(Check("order along up", d >= ORDER_MARGIN * ext[2],
+                            f"{a} above {b} by {mm(d)} the least (need {mm(ORDER_MARGIN * ext[2])})",
+                            f"the mesh's up is not {_word(up)}: {orient}"))
+
+    pairs = _pairs(names)
+    if pairs:
+        # A limb's own joints (below the joint where it leaves the trunk) must sit
+        # in two limbs: apart by at least the limbs' mean radius (the depth there).
+        trunk = {0} | {j for j in range(len(names)) if len(skel.children(j)) > 1}
+        limb = [(i, k) for i, k in pairs if skel.parents[i] not in trunk] or pairs
+        r = {j: vol.d[vol.nearest(P[j])] for ik in limb for j in ik}
+        ratio = [((P[i] - P[k]) @ left) / max(0.5 * (r[i] + r[k]), 1e-9) for i, k in limb]
+        j = int(np.argmin(ratio))
+        i, k = limb[j]
+        checks.append(Check("left/right apart", ratio[j] >= SPACING_MIN,
+                            f"{names[i]} and {names[k]} {mm((P[i] - P[k]) @ left)} apart, "
+                            f"{ratio[j]:.2f} times the limbs' radius there "
+                            f"({mm(0.5 * (r[i] + r[k]))}) the least (need {SPACING_MIN:g})",
+                            f"the limbs are not where a {tmpl.name}'s are: {orient}, or list "
+                            "the joints (joints:)"))
+        c = 0.5 * (Q[:, 1].min() + Q[:, 1].max())
+        mis = [np.linalg.norm(raw_pos[i] - (raw_pos[k] - 2 * ((raw_pos[k] @ left) - c) * left))
+               for i, k in pairs]
+        j = int(np.argmax(mis))
+        checks.append(Check("mirror", mis[j] <= MIRROR_MAX * size,
+                            f"{names[pairs[j][0]]} and {names[pairs[j][1]]} mirror within "
+                            f"{mm(mis[j])} the most (allowed {mm(MIRROR_MAX * size)})",
+                            f"left and right limbs differ: {orient}, or list the joints "
+                            "(joints:) for an asymmetric pose"))
+
+    seg_joint, a, b = skel.bone_segments()
+    t = (np.arange(BONE_SAMPLES) + 1.0) / (BONE_SAMPLES + 1.0)
+    S = (a[:, None] + t[None, :, None] * (b - a)[:, None]).reshape(-1, 3)
+    ws = winding_numbers(S, V, F)
+    outside = ws < 0.5
+    if outside.any():
+        far = surface_distance(S[outside], V, F) > 0.5 * vol.h
+        outside[np.flatnonzero(outside)[~far]] = False
+    bones = outside.reshape(len(seg_joint), BONE_SAMPLES).any(1)
+    worst = ", ".join(sorted({names[j] for j in seg_joint[bones]})[:3])
+    checks.append(Check("bones inside", not bones.any(),
+                        f"{int(outside.sum())} of {len(S)} points along {len(seg_joint)} bones "
+                        "outside the surface" + (f" ({worst})" if bones.any() else ""),
+                        f"bones leave the body: {orient}, or list the joints (joints:)"))
+    return checks
+
+
+def _word(v) -> str:
+    for i, a in enumerate(_AXES):
+        for sgn in (1, -1):
+            if np.allclose(v, sgn * a, atol=1e-9):
+                return f"{'+-'[sgn < 0]}{'xyz'[i]}"
+    return "[" + ", ".join(f"{x:.3f}" for x in v) + "]"
 
 
 def _subtree_size(kids, j):
@@ -637,7 +953,7 @@ def _pull_back(vol, P, path):
     return P[:max(k, 1) + 1]
 
 
-def _symmetrise(names, pos, tips, A, Q, V, F):
+def _symmetrise(names, pos, tips, A, Q):
     """Mirror-average left/right pairs (``l_*`` / ``r_*``) and centre the others."""
     c = 0.5 * (Q[:, 1].min() + Q[:, 1].max())
     left = A[:, 1]
@@ -663,7 +979,7 @@ def _symmetrise(names, pos, tips, A, Q, V, F):
 
 def _keep_inside(vol, V, F, pos, tips):
     """Move any joint or tip outside (or within a quarter voxel of) the skin to
-    the nearest voxel at least a voxel deep."""
+    the nearest voxel at least a voxel deep; returns (pos, tips, how many moved)."""
     pts = np.vstack([pos, tips])
     fin = np.isfinite(pts).all(1)
     P = pts[fin]
@@ -674,7 +990,7 @@ def _keep_inside(vol, V, F, pos, tips):
         P[i] = vol.pts[vol.nearest(P[i], min_depth=min(vol.h, 0.5 * vol.d.max()))]
     pts[fin] = P
     J = len(pos)
-    return pts[:J], pts[J:]
+    return pts[:J], pts[J:], int(bad.sum())
 
 
 # ------------------------------------------------------------------ characters
@@ -745,9 +1061,14 @@ def load_embedded(mesh_path: str | Path, template: str | Path = "humanoid", up=N
     steps = Steps(f"set-up of {mesh_path}", enabled=progress)
     V, F = read_closed_mesh(mesh_path)
     try:
-        skel = embed_skeleton(V, F, template, up=up, forward=forward)
+        emb = fit_template(V, F, template, up=up, forward=forward)
     except ValueError as e:
         raise ValueError(f"{mesh_path}: {e}") from None
+    if not emb.passed:
+        raise ValueError(f"{mesh_path}: {emb.failure()}")
+    if progress:
+        print(f"[skin_node] {mesh_path}: {emb.summary()}", file=sys.stderr, flush=True)
+    skel = emb.skeleton
     steps(f"skeleton embedded ({skel.n_joints} joints)")
     opt = options or RigOptions()
     opt = replace(opt, tet_count=int(tet_count or (opt.tet_count if options

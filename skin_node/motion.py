@@ -1,0 +1,162 @@
+"""Motion for a character, by name: built-in clips, a glTF file's own animations, BVH.
+
+One place that ``mocap_player``, the exporter and ``skin_bench`` ask for "the
+clip NAME of this character":
+
+* a **built-in clip** (:data:`skin_node.CLIP_NAMES`), when the skeleton has its
+  channels;
+* an **animation of a glTF character** (``.glb`` / ``.gltf``), by its name or as
+  ``gltf:NAME`` (``gltf:0`` for the first by index; unnamed ones are called
+  ``animation<k>``), sampled at any rate and converted to the skeleton's
+  channels exactly (:func:`skin_node.io.gltf.gltf_clip`). A file's animation
+  wins over a built-in clip of the same name; with no clip asked for, a glTF
+  character plays its first animation;
+* a **BVH file**, retargeted through a mapping (default
+  ``config/cmu_to_<character file name>.yaml``).
+
+Only the skeleton is read: no tet mesh or weights are built.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .builtin.clips import CLIP_NAMES, FPS, Clip, default_clip_name, make_clip
+from .skeleton import Skeleton
+
+#: Prefix that names a glTF file's animation explicitly.
+GLTF_PREFIX = "gltf:"
+
+
+def config_path(name: str) -> Path:
+    """A file of the package's config/ folder, installed or in the source tree."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        path = Path(get_package_share_directory("skin_node")) / "config" / name
+        if path.exists():
+            return path
+    except (ImportError, LookupError, OSError):  # not installed, or no ament index set
+        pass
+    return Path(__file__).resolve().parents[1] / "config" / name
+
+
+def is_gltf(character: str) -> bool:
+    return Path(str(character)).suffix.lower() in (".glb", ".gltf")
+
+
+def character_skeleton(character: str) -> Skeleton:
+    """The skeleton of a built-in character or a character file, without rigging it."""
+    from .builtin.characters import BUILTIN_CHARACTERS
+    if character in BUILTIN_CHARACTERS:
+        # The skeleton does not depend on the density: the coarsest mesh is cheapest.
+        return BUILTIN_CHARACTERS[character](surface_vertices=2000)[2]
+    if is_gltf(character):
+        from .io.gltf import load_gltf
+        return load_gltf(character).skeleton
+    if Path(str(character)).suffix.lower() in (".yaml", ".yml"):
+        from .io.character_file import load_character_file
+        return load_character_file(Path(character))[2]
+    from . import load_character
+    return load_character(character).skeleton
+
+
+def file_animations(character: str) -> list[str]:
+    """Names of a glTF character's animations (empty for anything else)."""
+    if not is_gltf(character):
+        return []
+    from .io.gltf import gltf_animation_names
+    return gltf_animation_names(character)
+
+
+def clip_names(character: str, skeleton: Skeleton | None = None) -> list[str]:
+    """Every clip ``character`` can play: its file's animations, then the built-in
+    clips whose channels its skeleton has."""
+    skeleton = skeleton or character_skeleton(character)
+    own = file_animations(character)
+    builtin = []
+    for name in CLIP_NAMES:
+        if name in own:
+            continue
+        try:
+            make_clip(name, skeleton)
+        except (ValueError, KeyError):   # a channel or a named joint it lacks
+            continue
+        builtin.append(name)
+    return own + builtin
+
+
+def file_clip(character: str, name: str, fps: float | None = None):
+    """The glTF animation ``name`` (or ``gltf:NAME`` / ``gltf:<index>``) of a
+    glTF character as a :class:`~skin_node.io.gltf.GltfClip`, or None when
+    ``name`` is not one of its animations (or the character is no glTF file).
+
+    Raises
+    ------
+    ValueError
+        For ``gltf:NAME`` that the file does not have, or a non-glTF character.
+    """
+    explicit = str(name).startswith(GLTF_PREFIX)
+    key = str(name)[len(GLTF_PREFIX):] if explicit else str(name)
+    if not is_gltf(character):
+        if explicit:
+            raise ValueError(f"{name}: {character} is not a glTF file; only glTF "
+                             "characters have animations of their own")
+        return None
+    own = file_animations(character)
+    if not explicit and key not in own:
+        return None
+    from .io.gltf import load_gltf
+    return load_gltf(character).clip(key, fps=float(fps or FPS))
+
+
+def load_motion(character: str, clip: str = "", bvh: str = "", mapping: str = "",
+                fps: float | None = None, skeleton: Skeleton | None = None) -> Clip:
+    """The motion ``character`` plays: a BVH file, a glTF animation or a built-in clip.
+
+    Parameters
+    ----------
+    character : str
+        ``arm``, ``humanoid`` or a character file.
+    clip : str
+        A clip name (see the module docstring); empty for the default (a glTF
+        character's first animation, else the character's built-in clip).
+    bvh, mapping : str
+        A BVH file to retarget instead, and its mapping YAML.
+    fps : float, optional
+        Sampling rate of a glTF animation (default 120, the built-in clips' rate).
+    skeleton : Skeleton, optional
+        The character's skeleton, if already loaded.
+
+    Returns
+    -------
+    Clip
+        ``frames`` (T, C) over ``channel_names`` (the skeleton's channels).
+
+    Raises
+    ------
+    ValueError
+        For an unknown clip (naming the clips that do apply) or a bad file.
+    """
+    skeleton = skeleton or character_skeleton(character)
+    if bvh:
+        from .io.bvh import load_bvh
+        from .retarget import load_mapping, retarget_bvh
+        source = load_bvh(bvh)
+        # A character file picks its map by name: .../CesiumMan.glb -> cmu_to_cesiumman.yaml
+        default = config_path(f"cmu_to_{Path(character).stem.lower()}.yaml")
+        spec = load_mapping(mapping or default, skeleton, source)
+        names, frames, rate = retarget_bvh(source, skeleton, spec)
+        return Clip(Path(bvh).stem, list(names), np.asarray(frames), float(rate))
+    if not clip and file_animations(character):
+        clip = f"{GLTF_PREFIX}0"
+    own = file_clip(character, clip, fps) if clip else None
+    if own is not None:
+        return own
+    name = clip or default_clip_name(character)
+    try:
+        return make_clip(name, skeleton)
+    except (ValueError, KeyError) as e:
+        known = clip_names(character, skeleton)
+        raise ValueError(f"{character}: clip '{name}': {e}; clips for this character: "
+                         f"{known or 'none'} (or --bvh FILE)") from None
