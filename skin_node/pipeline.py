@@ -11,18 +11,22 @@ import numpy as np
 
 from .skeleton import forward_kinematics
 from .stages.base import Frame, Stage
+from .rigging.build import WEIGHT_SCHEMES
 from .stages.collision import Collision
+from .stages.contact import Contact
 from .stages.pbd import CONSTRAINTS, PBD
+from .stages.shape import Bulge, Inflate
 from .stages.skinning import DQS, LBS
 from .stages.smooth import Smooth
 from .stages.volume import Volume
 
-STAGES = {s.name: s for s in (LBS, DQS, PBD, Collision, Smooth, Volume)}
+STAGES = {s.name: s for s in (LBS, DQS, PBD, Bulge, Inflate, Contact, Collision, Smooth,
+                               Volume)}
 STAGE_NAMES = tuple(STAGES)
 
-#: Our default: DQS start (no candy wrapper), extended PBD on the bent joints'
-#: zones, the paper's self-collision and smoothing.
-DEFAULT_STAGES = ("dqs", "pbd", "smooth", "collision", "volume")
+#: Our default: DQS start (no candy wrapper) with smooth weights, then skin
+#: kept out of other parts' flesh.
+DEFAULT_STAGES = ("dqs", "bulge", "contact", "inflate")
 
 #: Named stage lists with the parameters that make them what they are.
 PRESETS = {
@@ -30,11 +34,13 @@ PRESETS = {
     "dqs": (("dqs",), {}),
     # Abu Rumman & Fratarcangeli 2015: PBD without the energy constraint.
     "pbs": (("lbs", "pbd"), {"solver": "pbd", "constraints": ["stretch", "volume", "bind"],
+                             "weight_scheme": "inverse_distance",
                              "active_regions": False, "active_threshold": 0.0,
                              "iterations": 5, "warm_start": False}),
     # Chen & Pan 2017 as published: LBS start, plain PBD, its four constraints.
     "paper": (("lbs", "pbd", "collision", "smooth"),
               {"solver": "pbd", "active_regions": False, "active_threshold": 0.0,
+               "weight_scheme": "inverse_distance",
                "iterations": 5, "warm_start": False, "collision_halfspace": False, "collision_angle": 0.0,
                "smooth_mode": "position", "smoothing": 0.3, "smoothing_iterations": 1,
                "collision_pushout": False, "collision_parent": False,
@@ -83,6 +89,29 @@ class ParamSpec:
 
 
 PIPELINE_PARAMS = {
+    "weight_scheme": ParamSpec(str, "character", description="skin weights: 'character' (the "
+                               "character's own: smooth bone heat, or a file's) or "
+                               "'inverse_distance' (the paper's, 3 bones in joint regions, 2 "
+                               "elsewhere)", choices=WEIGHT_SCHEMES),
+    "contact_margin": ParamSpec(float, 0.5, 0.0, 3.0, "gap each side of a fold keeps from the "
+                                "surface where the two parts meet, in mean edges"),
+    "contact_rounds": ParamSpec(int, 8, 0, 50, "projection and smoothing rounds of the contact "
+                                "stage"),
+    "contact_rings": ParamSpec(int, 3, 0, 20, "rings around skin in contact that follow it"),
+    "contact_smoothing": ParamSpec(int, 4, 0, 50, "Laplacian passes over the contact's "
+                                   "displacement per round"),
+    "bulge_limit": ParamSpec(float, 0.1, 0.001, 2.0, "the most skin stands out from its bone "
+                             "beyond its rest distance, in rest distances"),
+    "inflate_rings": ParamSpec(int, 3, 0, 20, "rings around skin in contact over which "
+                               "inflation fades in"),
+    "inflate_zone": ParamSpec(str, "region", description="what inflation keeps: the paper's "
+                              "joint 'region', or the skin whose 'weights' the joint splits",
+                              choices=("region", "weights")),
+    "inflate_slack": ParamSpec(float, 0.02, 0.0, 1.0, "the whole mesh may keep this share of "
+                               "its volume lost (what the joint regions do not take back); "
+                               "1 leaves it alone"),
+    "inflate_max": ParamSpec(float, 0.25, 0.0, 2.0, "the most inflation moves skin, in limb "
+                             "radii of the joint"),
     "iterations": ParamSpec(int, 1, 0, 200, "Gauss-Seidel iterations of the PBD solve per frame "
                             "(more come closer to the converged reference but flicker more in "
                             "crushed folds: skin_bench run --iterations 1,2,3)"),
@@ -253,7 +282,11 @@ class Pipeline:
             if k not in PIPELINE_PARAMS:
                 raise ValueError(f"unknown parameter '{k}'; parameters are {list(PIPELINE_PARAMS)}")
             checked[k] = PIPELINE_PARAMS[k].check(k, v)
+        rebuild = "weight_scheme" in checked and checked["weight_scheme"] != \
+            self.params.get("weight_scheme")
         self.params.update(checked)
+        if rebuild and getattr(self, "stages", None):
+            self.stages = [STAGES[s](self.character, self.params) for s in self.stage_names]
         for s in getattr(self, "stages", []):
             s.reset()
 

@@ -11,12 +11,17 @@ from pathlib import Path
 
 import numpy as np
 
+from typing import NamedTuple
+
 from ..metrics import mesh_volume
 from ..skeleton import Skeleton
+from .fields import lattice_sampler, part_fields
+from .heat import bone_heat, continuous_top_k, dense_weights, lattice_extension
 from .tetra import lattice_for_count, signed_volumes, tet_edges
-from .weights import bone_distances, inverse_distance_weights, joint_radii, joint_regions
+from .weights import (bone_distances, inverse_distance_weights, joint_radii, joint_regions,
+                      point_segment_distance)
 
-RIG_VERSION = 7
+RIG_VERSION = 8
 
 
 @dataclass
@@ -35,12 +40,22 @@ class RigOptions:
         when it takes more than this weight both from bones below ``j`` and from
         bones above it: only there does bending ``j`` make LBS non-rigid.
     weight_power : float
-        The exponent of the inverse-distance weights (the paper's 4).
+        The exponent of the paper's inverse-distance weights (its 4).
     neighbours_only : bool
-        Restrict a point's bones to the nearest bone and its tree neighbours.
+        Restrict a point's paper weights to the nearest bone and its tree
+        neighbours.
     weights : str
-        ``"automatic"`` (the paper's inverse-distance weights) or ``"file"``
-        (the artist's weights of the character file, see :func:`file_weights`).
+        The character's own weights: ``"automatic"`` (bone heat, smooth: see
+        :mod:`skin_node.rigging.heat`) or ``"file"`` (the artist's weights of
+        the character file, see :func:`file_weights`). The paper's
+        inverse-distance weights are kept beside them either way (pipeline
+        parameter ``weight_scheme``).
+    influences : int
+        Bones per vertex of the character's weights.
+    heat : float
+        Strength of bone heat's sources (Baran & Popovic's 1).
+    field_cell : float
+        Node spacing of the parts' distance fields, in mean surface edges.
     """
 
     tet_count: int = 12000
@@ -49,27 +64,52 @@ class RigOptions:
     weight_power: float = 4.0
     neighbours_only: bool = True
     weights: str = "automatic"
+    influences: int = 4
+    heat: float = 1.0
+    field_cell: float = 0.6
 
 
-#: Where the skin weights of a rig come from (:attr:`RigOptions.weights`).
+#: Where the character's skin weights come from (:attr:`RigOptions.weights`).
 WEIGHT_SOURCES = ("automatic", "file")
+
+
+class Weights(NamedTuple):
+    """One weighting of a rig: surface ``Widx, Wval`` (n, K), tet-mesh
+    ``TWidx, TWval`` (k, K) and the tet vertices' joint zones ``zone`` (k, J)
+    (see :func:`weight_zones`)."""
+
+    Widx: np.ndarray
+    Wval: np.ndarray
+    TWidx: np.ndarray
+    TWval: np.ndarray
+    zone: np.ndarray
+
+
+#: The weightings a pipeline can skin with (``weight_scheme``): the
+#: character's own, or the paper's inverse-distance ones.
+WEIGHT_SCHEMES = ("character", "inverse_distance")
 
 
 @dataclass
 class Rig:
     """Everything the per-frame stages need, as plain arrays.
 
-    Surface (n vertices): ``Widx, Wval`` (n,3) weights; ``region`` (n,) joint
-    region or -1; ``Etet, Ebary`` (n,4) embedding; ``adj_ptr, adj`` one-ring CSR.
+    Surface (n vertices): ``Widx, Wval`` (n,K) the character's weights;
+    ``part`` (n,) the bone each vertex belongs to (its heaviest); ``region``
+    (n,) joint region or -1; ``Etet, Ebary`` (n,4) embedding; ``adj_ptr, adj``
+    one-ring CSR.
     Tets (k vertices, t tets, e edges): ``TV`` (k,3), ``T`` (t,4), ``E`` (e,2),
-    ``TWidx, TWval`` (k,3), ``mass`` (k,), ``vol0`` (t,), ``len0`` (e,),
+    ``TWidx, TWval`` (k,K), ``mass`` (k,), ``vol0`` (t,), ``len0`` (e,),
     ``erest`` (t,4) energy spring rest lengths, ``bseg, brest`` (k,) bind
     segment and rest distance, ``zone`` (k,J) bool.
+    ``pid_*``: the paper's inverse-distance weights (3 and 2 bones) and zones.
+    ``field_*``: the parts' distance fields (:class:`~skin_node.rigging.fields.PartFields`).
     Joints: ``radius``, ``threshold`` (J,).
     """
 
     Widx: np.ndarray
     Wval: np.ndarray
+    part: np.ndarray
     region: np.ndarray
     Etet: np.ndarray
     Ebary: np.ndarray
@@ -91,6 +131,38 @@ class Rig:
     radius: np.ndarray
     threshold: np.ndarray
     cube: np.ndarray
+    pid_Widx: np.ndarray
+    pid_Wval: np.ndarray
+    pid_TWidx: np.ndarray
+    pid_TWval: np.ndarray
+    pid_zone: np.ndarray
+    field_origin: np.ndarray
+    field_cell: np.ndarray
+    field_dims: np.ndarray
+    field_ptr: np.ndarray
+    field_values: np.ndarray
+    field_sptr: np.ndarray
+    field_sets: np.ndarray
+    field_wdims: np.ndarray
+    field_wptr: np.ndarray
+    field_wvalues: np.ndarray
+
+    def weights(self, scheme: str = "character") -> Weights:
+        """The :class:`Weights` of ``scheme`` (:data:`WEIGHT_SCHEMES`)."""
+        if scheme == "character":
+            return Weights(self.Widx, self.Wval, self.TWidx, self.TWval, self.zone)
+        if scheme == "inverse_distance":
+            return Weights(self.pid_Widx, self.pid_Wval, self.pid_TWidx, self.pid_TWval,
+                           self.pid_zone)
+        raise ValueError(f"weight scheme must be one of {list(WEIGHT_SCHEMES)}, got {scheme!r}")
+
+    @property
+    def fields(self) -> tuple:
+        """The part fields as the tuple :func:`skin_node.kernels.contact.skinned_field`
+        takes."""
+        return (self.field_origin, self.field_cell, self.field_dims, self.field_ptr,
+                self.field_values, self.field_sptr, self.field_sets, self.field_wdims,
+                self.field_wptr, self.field_wvalues)
 
     def save(self, path: Path) -> None:
         tmp = Path(str(path) + f".{os.getpid()}.tmp.npz")
@@ -166,68 +238,33 @@ def rig_key(V: np.ndarray, F: np.ndarray, skel: Skeleton, opt: RigOptions,
         a = np.ascontiguousarray(a)
         h.update(str(a.dtype).encode() + str(a.shape).encode())
         h.update(a.tobytes())
-    items = vars(opt).items()
-    if opt.weights == "automatic":  # keeps the keys of rigs cached before the option existed
-        items = [(k, v) for k, v in items if k != "weights"]
-    h.update(repr(sorted(items)).encode())
+    h.update(repr(sorted(vars(opt).items())).encode())
     return h.hexdigest()[:20]
 
 
-def file_weights(widx: np.ndarray, wval: np.ndarray, n_joints: int, TV: np.ndarray,
-                 V: np.ndarray, k_nearest: int = 8, influences: int = 3):
-    """Surface and tet-vertex weights from a file's per-vertex weights.
+def file_weights(widx: np.ndarray, wval: np.ndarray, n_joints: int, n: int) -> np.ndarray:
+    """(n, J) dense weights of ``n`` surface vertices from a file's per-vertex
+    weights ``widx, wval`` (n, k) (bone ids and weights; rows need not sum
+    to 1, they are normalised).
 
-    The surface keeps each vertex's ``influences`` (3, as the kernels expect)
-    largest file weights, renormalised to sum 1 (files usually carry 4; a
-    fourth influence is dropped, fewer are padded with zero weights on joint
-    0). A tet vertex takes the inverse-distance mean (power 2) of the dense
-    weights of its ``k_nearest`` surface vertices, then the same top-3 cut.
-
-    Parameters
-    ----------
-    widx, wval : (n, k) int, float
-        File weights of the ``n`` surface vertices ``V``.
-    n_joints : int
-    TV : (t, 3) float
-        Tet-mesh vertices.
-    V : (n, 3) float
-        Surface vertices.
-
-    Returns
-    -------
-    Widx, Wval, TWidx, TWval : (n, 3) and (t, 3) arrays
+    Raises
+    ------
+    ValueError
+        For mismatched shapes, bones outside ``0..n_joints-1`` or a vertex
+        with no positive weight.
     """
-    from scipy.spatial import cKDTree
     widx = np.asarray(widx, dtype=np.int64)
     wval = np.asarray(wval, dtype=np.float64)
-    if widx.shape != wval.shape or widx.ndim != 2 or len(widx) != len(V):
+    if widx.shape != wval.shape or widx.ndim != 2 or len(widx) != n:
         raise ValueError(f"file weights have shapes {widx.shape} / {wval.shape}, expected "
-                         f"({len(V)}, k) each")
+                         f"({n}, k) each")
     if widx.size and (widx.min() < 0 or widx.max() >= n_joints):
         raise ValueError(f"file weights name joints outside 0..{n_joints - 1}")
-    W = np.zeros((len(V), n_joints))
-    np.add.at(W, (np.repeat(np.arange(len(V)), widx.shape[1]), widx.ravel()), wval.ravel())
-
-    def top(Wd):
-        idx = np.argsort(-Wd, axis=1, kind="stable")[:, :influences]
-        val = np.take_along_axis(Wd, idx, axis=1)
-        if idx.shape[1] < influences:
-            pad = influences - idx.shape[1]
-            idx = np.concatenate([idx, np.zeros((len(idx), pad), np.int64)], axis=1)
-            val = np.concatenate([val, np.zeros((len(val), pad))], axis=1)
-        s = val.sum(1, keepdims=True)
-        if np.any(s <= 0):
-            raise ValueError(f"{int((s <= 0).sum())} vertices have no positive file weight")
-        return np.ascontiguousarray(idx, dtype=np.int64), np.ascontiguousarray(val / s)
-
-    Widx, Wval = top(W)
-    k = min(k_nearest, len(V))
-    d, nn = cKDTree(V).query(TV, k=k)
-    d, nn = d.reshape(len(TV), k), nn.reshape(len(TV), k)
-    w = 1.0 / np.maximum(d, 1e-9) ** 2
-    TW = np.einsum("tk,tkj->tj", w, W[nn]) / w.sum(1, keepdims=True)
-    TWidx, TWval = top(TW)
-    return Widx, Wval, TWidx, TWval
+    W = dense_weights(widx, np.maximum(wval, 0.0), n_joints)
+    s = W.sum(1)
+    if np.any(s <= 0):
+        raise ValueError(f"{int((s <= 0).sum())} vertices have no positive file weight")
+    return W / s[:, None]
 
 
 def build_rig(V: np.ndarray, F: np.ndarray, skel: Skeleton, opt: RigOptions,
@@ -255,14 +292,27 @@ def build_rig(V: np.ndarray, F: np.ndarray, skel: Skeleton, opt: RigOptions,
     threshold = opt.region_scale * radius
     D, _ = bone_distances(V, skel)
     region = joint_regions(V, skel, threshold)
-    Widx, Wval = inverse_distance_weights(D, region, skel, opt.weight_power, opt.neighbours_only)
-    TD, tnearest = bone_distances(TV, skel)
+    TD, _ = bone_distances(TV, skel)
     tregion = joint_regions(TV, skel, threshold)
-    TWidx, TWval = inverse_distance_weights(TD, tregion, skel, opt.weight_power,
+    # the paper's weights, kept for the pipelines that reproduce it
+    pWidx, pWval = inverse_distance_weights(D, region, skel, opt.weight_power,
                                             opt.neighbours_only)
+    pTWidx, pTWval = inverse_distance_weights(TD, tregion, skel, opt.weight_power,
+                                              opt.neighbours_only)
+    # the character's own: one smooth field for the surface and the tets
     if opt.weights == "file":
-        Widx, Wval, TWidx, TWval = file_weights(weights[0], weights[1], skel.n_joints, TV, V)
-    steps(f"regions and {opt.weights} weights")
+        W = file_weights(weights[0], weights[1], skel.n_joints, n)
+    else:
+        W = bone_heat(V, F, skel, opt.heat)
+    TW = lattice_extension(W, E, len(TV), Etet, Ebary)
+    Widx, Wval = continuous_top_k(W, opt.influences)
+    TWidx, TWval = continuous_top_k(TW, opt.influences)
+    steps(f"regions, {opt.weights} weights ({opt.influences} bones a vertex) and the "
+          "paper's")
+    edge = float(np.linalg.norm(V[F[:, 0]] - V[F[:, 1]], axis=1).mean())
+    pf = part_fields(V, F, W, lattice_sampler(TV, cube, TW), cell=opt.field_cell * edge,
+                     pad=6.0 * edge, influences=opt.influences)
+    steps(f"part fields: {len(pf.values)} nodes")
 
     vol0 = signed_volumes(TV, T)
     mass = np.zeros(len(TV))
@@ -275,18 +325,23 @@ def build_rig(V: np.ndarray, F: np.ndarray, skel: Skeleton, opt: RigOptions,
     centroid = (mt[..., None] * TV[T]).sum(1) / mt.sum(1, keepdims=True)
     erest = np.linalg.norm(TV[T] - centroid[:, None, :], axis=2)
     seg_joint, A, B = skel.bone_segments()
-    from .weights import point_segment_distance
     Ds = point_segment_distance(TV, A, B)
     bseg = np.argmin(Ds, axis=1)
     brest = Ds[np.arange(len(TV)), bseg]
-    zone = weight_zones(TWidx, TWval, skel, opt.zone_weight)
     adj_ptr, adj = one_ring(F, n)
     steps(f"constraints: {len(T)} tets, {len(E)} edges")
-    return Rig(Widx=Widx, Wval=Wval, region=region, Etet=Etet, Ebary=Ebary, adj_ptr=adj_ptr,
+    return Rig(Widx=Widx, Wval=Wval, part=np.argmax(W, axis=1).astype(np.int64),
+               region=region, Etet=Etet, Ebary=Ebary, adj_ptr=adj_ptr,
                adj=adj, TV=TV, T=T, E=E, TWidx=TWidx, TWval=TWval, tregion=tregion, mass=mass,
                vol0=vol0, len0=len0, erest=erest, bseg=bseg.astype(np.int64), brest=brest,
-               zone=zone, radius=radius, threshold=threshold,
-               cube=np.array(cube))
+               zone=weight_zones(TWidx, TWval, skel, opt.zone_weight), radius=radius,
+               threshold=threshold, cube=np.array(cube),
+               pid_Widx=pWidx, pid_Wval=pWval, pid_TWidx=pTWidx, pid_TWval=pTWval,
+               pid_zone=weight_zones(pTWidx, pTWval, skel, opt.zone_weight),
+               field_origin=pf.origin, field_cell=pf.cell, field_dims=pf.dims,
+               field_ptr=pf.ptr, field_values=pf.values, field_sptr=pf.sptr,
+               field_sets=pf.sets, field_wdims=pf.wdims, field_wptr=pf.wptr,
+               field_wvalues=pf.wvalues)
 
 
 def cached_rig(V: np.ndarray, F: np.ndarray, skel: Skeleton, opt: RigOptions,

@@ -81,6 +81,8 @@ class Stage:
     def __init__(self, character, params: dict) -> None:
         self.character = character
         self.params = params
+        #: the skin weights this pipeline skins with (``weight_scheme``)
+        self.weights = character.rig.weights(params["weight_scheme"])
 
     def __call__(self, frame: Frame) -> None:  # pragma: no cover - interface
         raise NotImplementedError

@@ -19,14 +19,17 @@ class JointRegions:
     majority side ``tside[j]``; ``R[j]`` (2,) the largest rest distance of
     each side's skin from its bone (the parent's bone into ``j``, ``j``'s own).
     :meth:`tree` gives a region's :func:`triangle_trees`, made on first use.
+    Sides and triangle bones come from ``weights`` (a
+    :class:`~skin_node.rigging.build.Weights`; the character's by default).
     """
 
-    def __init__(self, character):
+    def __init__(self, character, weights=None):
         skel, r, F = character.skeleton, character.rig, character.F
+        w = weights or r.weights()
         self.skel = skel
         J = skel.n_joints
         below = skel.subtree()          # below[j, b]: b is j or under j
-        dom = r.Widx[np.arange(len(r.Widx)), np.argmax(r.Wval, axis=1)]
+        dom = w.Widx[np.arange(len(w.Widx)), np.argmax(w.Wval, axis=1)]
         self.child = np.array([skel.children(j)[0] if skel.children(j) else -1 for j in range(J)])
         self.verts, self.vside, self.tris, self.tside = [], [], [], []
         self.R = np.zeros((J, 2))
@@ -53,8 +56,8 @@ class JointRegions:
         self.tri_normal = N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-30)
         wsum = np.zeros((len(F), J))
         for k in range(3):
-            np.add.at(wsum, (np.repeat(np.arange(len(F)), r.Widx.shape[1]),
-                             r.Widx[F[:, k]].ravel()), r.Wval[F[:, k]].ravel())
+            np.add.at(wsum, (np.repeat(np.arange(len(F)), w.Widx.shape[1]),
+                             w.Widx[F[:, k]].ravel()), w.Wval[F[:, k]].ravel())
         self.tri_bone = np.argmax(wsum, axis=1)
         e = np.linalg.norm(character.V[F[:, 0]] - character.V[F[:, 1]], axis=1)
         self.edge = float(np.median(e))
@@ -212,11 +215,11 @@ class Collision(Stage):
     def __init__(self, character, params):
         super().__init__(character, params)
         self.F, self.V0 = character.F, character.V
-        self.regions = JointRegions(character)
+        self.regions = JointRegions(character, self.weights)
         self.child = self.regions.child
         r = character.rig
         # surface vertices the solve can move, per joint: embedded in a tet of its zone
-        self._szone = r.zone[r.Etet].any(axis=1)
+        self._szone = self.weights.zone[r.Etet].any(axis=1)
         self._moved = KeyedCache()
 
     def _fold_ends(self, fr: Frame, j: int):

@@ -72,7 +72,8 @@ class PBD(Stage):
         self._sets, self._zsets, self._slabs = KeyedCache(), KeyedCache(), KeyedCache(4)
         self._g = np.zeros((len(r.TV), 3))
         # Warm start: last frame's correction in the frame of each vertex's main bone.
-        self._dom = r.TWidx[np.arange(len(r.TV)), np.argmax(r.TWval, axis=1)]
+        w = self.weights
+        self._dom = w.TWidx[np.arange(len(r.TV)), np.argmax(w.TWval, axis=1)]
         self._corr = np.zeros((len(r.TV), 3))
         self._dX = None
         self._contact_setup(character)
@@ -85,12 +86,13 @@ class PBD(Stage):
         skel, r = character.skeleton, self.rig
         J = skel.n_joints
         below = skel.subtree()          # below[j, b]: b is j or under j
-        dom = r.TWidx[np.arange(len(r.TV)), np.argmax(r.TWval, axis=1)]
-        self._regions = JointRegions(character)
+        w = self.weights
+        dom = w.TWidx[np.arange(len(r.TV)), np.argmax(w.TWval, axis=1)]
+        self._regions = JointRegions(character, w)
         self.cverts, self.cside = [], []
         self.cR = np.zeros((J, 2))
         for j in range(J):
-            v = np.flatnonzero(r.zone[:, j]) if skel.parents[j] >= 0 else np.zeros(0, np.int64)
+            v = np.flatnonzero(w.zone[:, j]) if skel.parents[j] >= 0 else np.zeros(0, np.int64)
             side = below[j, dom[v]]
             self.cverts.append(v)
             self.cside.append(np.where(side, 1.0, -1.0))
@@ -107,7 +109,7 @@ class PBD(Stage):
             r = self.rig
             out = []
             for j in np.flatnonzero(bent):
-                zt = np.flatnonzero(r.zone[r.T, j].any(axis=1))
+                zt = np.flatnonzero(self.weights.zone[r.T, j].any(axis=1))
                 if len(zt):
                     out.append((zt, np.unique(r.T[zt]), float(r.vol0[zt].sum())))
             return out
@@ -179,7 +181,7 @@ class PBD(Stage):
     def _make_active(self, bent: np.ndarray, parts: int):
         r = self.rig
         if self.params["active_regions"]:
-            vmask = r.zone[:, bent].any(axis=1)
+            vmask = self.weights.zone[:, bent].any(axis=1)
         else:
             vmask = np.ones(len(r.TV), dtype=bool)
         if not vmask.any():
@@ -203,7 +205,7 @@ class PBD(Stage):
             sets = {STRETCH: one(edge), VOLUME: one(tet), BIND: one(vert)}
         sets[ENERGY] = sets[VOLUME]
         # per vertex, the largest zone membership of each joint (for the fade band)
-        vzone = np.ascontiguousarray(r.zone[sets[BIND][0]][:, bent], dtype=np.float64)
+        vzone = np.ascontiguousarray(self.weights.zone[sets[BIND][0]][:, bent], dtype=np.float64)
         # the surface vertices embedded in a tet with a simulated vertex
         sverts = np.flatnonzero(vmask[r.Etet].any(axis=1)).astype(np.int64)
         # every tet vertex the solve and the embedding read: those of the tets

@@ -63,8 +63,9 @@ class LBS(Stage):
         super().__init__(character, params)
         r = character.rig
         self.V, self.TV = character.V, r.TV
-        self.W = (r.Widx, r.Wval)
-        self.TW = (r.TWidx, r.TWval)
+        w = self.weights
+        self.W = (w.Widx, w.Wval)
+        self.TW = (w.TWidx, w.TWval)
 
     def transforms(self, fr: Frame) -> np.ndarray:
         """The frame's bone transforms in the form :meth:`skin` takes."""

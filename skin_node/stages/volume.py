@@ -40,6 +40,7 @@ import numpy as np
 from ..metrics import mesh_volume, region_volume
 from .base import Frame, KeyedCache, Stage
 from ..kernels.collision import crossed_at, in_box, longest_edge, near_points, seg_dist
+from ..kernels.topology import ring_distance
 from .collision import JointRegions
 
 
@@ -140,34 +141,6 @@ def move_along_normals(X, verts, m, g, C, budget):
             X[i, 1] += f * g[i, 1]
             X[i, 2] += f * g[i, 2]
     return lam, lam * den
-
-
-@nb.njit(cache=True, nogil=True)
-def ring_distance(sources, ptr, nbr, hops, limit, queue):
-    """Breadth-first hop counts from ``sources`` over the one-ring CSR, up to
-    ``limit``; ``hops`` must hold at least ``limit`` everywhere on entry. Returns the
-    number of vertices reached; ``queue[:n]`` lists them (to reset ``hops``)."""
-    n = 0
-    for a in range(sources.shape[0]):
-        i = sources[a]
-        if hops[i] != 0:
-            hops[i] = 0
-            queue[n] = i
-            n += 1
-    head = 0
-    while head < n:
-        i = queue[head]
-        head += 1
-        h = hops[i] + 1
-        if h >= limit:
-            continue
-        for b in range(ptr[i], ptr[i + 1]):
-            k = nbr[b]
-            if hops[k] > h:
-                hops[k] = h
-                queue[n] = k
-                n += 1
-    return n
 
 
 @nb.njit(cache=True, nogil=True)
@@ -318,7 +291,7 @@ class Volume(Stage):
         self.mobility = np.zeros((len(character.V), J))
         self.zone, self.side = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
         for j in range(1, J):
-            s = (r.Wval * below[j][r.Widx]).sum(1)
+            s = (self.weights.Wval * below[j][self.weights.Widx]).sum(1)
             self.mobility[:, j] = 4.0 * s * (1.0 - s)
             z = np.flatnonzero(self.mobility[:, j] > 0.02)
             self.zone.append(z)
@@ -327,7 +300,7 @@ class Volume(Stage):
         self._region = r.region
         self._threshold = r.threshold
         self.V0 = mesh_volume(character.V, character.F)
-        self.regions = regs = JointRegions(character)
+        self.regions = regs = JointRegions(character, self.weights)
         # Per joint region: its vertices that may move (the zone's), their side and
         # mobility, and the region's rest volume about the joint. The mobility falls
         # smoothly to 0 towards the region's border (over a third of the limb

@@ -1,0 +1,259 @@
+"""Contact between the body's parts through their rest distance fields (numba).
+
+Each surface vertex belongs to one part (its largest-weight bone). Posed, a
+vertex of part ``a`` must stay out of every other part ``b``'s flesh, which
+moves rigidly with bone ``b``: with ``s_b`` the signed distance to part ``b``
+at rest (:mod:`skin_node.rigging.fields`) and ``x_b = M_b^-1 p`` the vertex
+carried back into ``b``'s rest frame,
+
+    C_b(p) = s_b(x_b) - s_a(x_a) - min(m, r_b) >= 0,
+
+``m`` a margin, ``r_b`` the same difference at rest (skin that touches, or
+sits near a cut, at rest may stay as near). ``C_b = 0`` is the surface where
+the two parts' fields meet: skin of both sides stops a margin short of it, so
+the sides meet on one crease instead of passing through each other. A
+violated constraint is projected along its gradient,
+``dp = -C grad C / |grad C|^2`` (Muller et al. 2007).
+"""
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+#: Field value outside a part's grid: no contact possible there.
+FAR = 1e9
+
+
+@nb.njit(cache=True, nogil=True)
+def field_at(values, ptr, origin, cell, dims, j, x, y, z, clamp):
+    """Trilinear value and gradient of part ``j``'s field at rest point
+    ``(x, y, z)``; :data:`FAR` and a zero gradient outside its grid (inside
+    the grid's border cells with ``clamp``)."""
+    nx, ny, nz = dims[j, 0], dims[j, 1], dims[j, 2]
+    if nx < 2:
+        return FAR, 0.0, 0.0, 0.0
+    h = cell[j]
+    u = (x - origin[j, 0]) / h
+    v = (y - origin[j, 1]) / h
+    w = (z - origin[j, 2]) / h
+    if clamp:
+        u = min(max(u, 0.0), nx - 1.000001)
+        v = min(max(v, 0.0), ny - 1.000001)
+        w = min(max(w, 0.0), nz - 1.000001)
+    elif u < 0.0 or v < 0.0 or w < 0.0 or u >= nx - 1 or v >= ny - 1 or w >= nz - 1:
+        return FAR, 0.0, 0.0, 0.0
+    i, k, l = int(u), int(v), int(w)
+    fu, fv, fw = u - i, v - k, w - l
+    b = ptr[j] + (i * ny + k) * nz + l
+    sy, sx = nz, ny * nz
+    c000, c001 = values[b], values[b + 1]
+    c010, c011 = values[b + sy], values[b + sy + 1]
+    c100, c101 = values[b + sx], values[b + sx + 1]
+    c110, c111 = values[b + sx + sy], values[b + sx + sy + 1]
+    c00 = c000 + (c001 - c000) * fw
+    c01 = c010 + (c011 - c010) * fw
+    c10 = c100 + (c101 - c100) * fw
+    c11 = c110 + (c111 - c110) * fw
+    c0 = c00 + (c01 - c00) * fv
+    c1 = c10 + (c11 - c10) * fv
+    val = c0 + (c1 - c0) * fu
+    gx = (c1 - c0) / h
+    gy = ((c01 - c00) * (1.0 - fu) + (c11 - c10) * fu) / h
+    d0 = (c001 - c000) * (1.0 - fv) + (c011 - c010) * fv
+    d1 = (c101 - c100) * (1.0 - fv) + (c111 - c110) * fv
+    gz = (d0 * (1.0 - fu) + d1 * fu) / h
+    return val, gx, gy, gz
+
+
+@nb.njit(cache=True, nogil=True)
+def _blend(Q, sets, s0, s1, wvalues, wptr, wdims, origin, cell, j, x, y, z, exclude):
+    """The dual quaternion (real w, x, y, z; translation) that skinning gives
+    rest point ``(x, y, z)`` of part ``j``'s flesh: its bone set's weights
+    there (trilinear, clamped to the grid) but bone ``exclude``'s, blended as
+    in :func:`dqs`."""
+    nx, ny, nz = wdims[j, 0], wdims[j, 1], wdims[j, 2]
+    h = 2.0 * cell[j]
+    u = min(max((x - origin[j, 0]) / h, 0.0), nx - 1.000001)
+    v = min(max((y - origin[j, 1]) / h, 0.0), ny - 1.000001)
+    w = min(max((z - origin[j, 2]) / h, 0.0), nz - 1.000001)
+    i, k, l = int(u), int(v), int(w)
+    fu, fv, fw = u - i, v - k, w - l
+    ns = s1 - s0
+    j0 = sets[s0]
+    b0 = b1 = b2 = b3 = b4 = b5 = b6 = b7 = 0.0
+    for c in range(ns):
+        wt = 0.0
+        for corner in range(8):
+            di, dk, dl = corner & 1, (corner >> 1) & 1, (corner >> 2) & 1
+            cw = ((fu if di else 1.0 - fu) * (fv if dk else 1.0 - fv)
+                  * (fw if dl else 1.0 - fw))
+            node = ((i + di) * ny + (k + dk)) * nz + (l + dl)
+            wt += cw * wvalues[wptr[j] + node * ns + c]
+        b = sets[s0 + c]
+        if wt == 0.0 or b == exclude:
+            continue
+        if Q[b, 0] * Q[j0, 0] + Q[b, 1] * Q[j0, 1] + Q[b, 2] * Q[j0, 2] + Q[b, 3] * Q[j0, 3] < 0:
+            wt = -wt
+        b0 += wt * Q[b, 0]
+        b1 += wt * Q[b, 1]
+        b2 += wt * Q[b, 2]
+        b3 += wt * Q[b, 3]
+        b4 += wt * Q[b, 4]
+        b5 += wt * Q[b, 5]
+        b6 += wt * Q[b, 6]
+        b7 += wt * Q[b, 7]
+    inv = 1.0 / np.sqrt(b0 * b0 + b1 * b1 + b2 * b2 + b3 * b3)
+    w0, x0, y0, z0 = b0 * inv, b1 * inv, b2 * inv, b3 * inv
+    we, xe, ye, ze = b4 * inv, b5 * inv, b6 * inv, b7 * inv
+    tx = 2.0 * (-we * x0 + xe * w0 - ye * z0 + ze * y0)
+    ty = 2.0 * (-we * y0 + ye * w0 - ze * x0 + xe * z0)
+    tz = 2.0 * (-we * z0 + ze * w0 - xe * y0 + ye * x0)
+    return w0, x0, y0, z0, tx, ty, tz
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _rotate(w0, x0, y0, z0, vx, vy, vz):
+    """Vector ``v`` rotated by unit quaternion ``(w0, x0, y0, z0)``."""
+    tx = 2.0 * (y0 * vz - z0 * vy)
+    ty = 2.0 * (z0 * vx - x0 * vz)
+    tz = 2.0 * (x0 * vy - y0 * vx)
+    return (vx + w0 * tx + (y0 * tz - z0 * ty), vy + w0 * ty + (z0 * tx - x0 * tz),
+            vz + w0 * tz + (x0 * ty - y0 * tx))
+
+
+@nb.njit(cache=True, nogil=True)
+def skinned_field(pf, Q, j, px, py, pz, x, y, z, iterations, clamp, exclude):
+    """Part ``j``'s field at posed point ``p`` and its posed gradient.
+
+    ``p`` is carried back to the rest point of part ``j``'s flesh that
+    skinning puts there (fixed-point iteration ``x <- T(x)^-1 p`` from the
+    guess ``x``, T the part's blend at x), so flesh that skinning bends with
+    a third bone is where the skin really is, not where its own bone alone
+    would put it. The blend leaves out bone ``exclude`` (-1: none). Returns
+    (value, gx, gy, gz); value :data:`FAR` outside the grid.
+    """
+    origin, cell, dims, ptr, values, sptr, sets, wdims, wptr, wvalues = pf
+    w0 = x0 = y0 = z0 = 0.0
+    for _ in range(iterations):
+        w0, x0, y0, z0, tx, ty, tz = _blend(Q, sets, sptr[j], sptr[j + 1], wvalues, wptr,
+                                            wdims, origin, cell, j, x, y, z, exclude)
+        x, y, z = _rotate(w0, -x0, -y0, -z0, px - tx, py - ty, pz - tz)
+    val, gx, gy, gz = field_at(values, ptr, origin, cell, dims, j, x, y, z, clamp)
+    if val >= FAR:
+        return FAR, 0.0, 0.0, 0.0
+    gx, gy, gz = _rotate(w0, x0, y0, z0, gx, gy, gz)
+    return val, gx, gy, gz
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _to_rest(Minv, j, p):
+    return (Minv[j, 0, 0] * p[0] + Minv[j, 0, 1] * p[1] + Minv[j, 0, 2] * p[2] + Minv[j, 0, 3],
+            Minv[j, 1, 0] * p[0] + Minv[j, 1, 1] * p[1] + Minv[j, 1, 2] * p[2] + Minv[j, 1, 3],
+            Minv[j, 2, 0] * p[0] + Minv[j, 2, 1] * p[1] + Minv[j, 2, 2] * p[2] + Minv[j, 2, 3])
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _in_grid(origin, cell, dims, j, x, y, z, pad):
+    """Whether rest point ``(x, y, z)`` lies within ``pad`` of part ``j``'s grid."""
+    h = cell[j]
+    return (dims[j, 0] > 1
+            and origin[j, 0] - pad <= x <= origin[j, 0] + (dims[j, 0] - 1) * h + pad
+            and origin[j, 1] - pad <= y <= origin[j, 1] + (dims[j, 1] - 1) * h + pad
+            and origin[j, 2] - pad <= z <= origin[j, 2] + (dims[j, 2] - 1) * h + pad)
+
+
+@nb.njit(cache=True, nogil=True)
+def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, face0, face1,
+                  iterations):
+    """The most violated contact constraint of vertex ``i`` of part ``a``
+    among parts ``cand[c0:c1]``: (C, gradient x, y, z); C >= 0 when none is.
+
+    Each part's flesh is where skinning puts it, blended with every bone but
+    the other party's: near their shared joint each side moves as its own
+    bone carries it, so skin that the blend swung past the other side's
+    (the inside of a deep bend, where skinning folds flesh over itself) is
+    seen inside it, while flesh that a third bone blends (a thigh's and the
+    pelvis's at the crotch) still moves with that bone. ``box`` (J, 2, 3):
+    each part's posed skin carried back by its bone alone, bounded; skin
+    outside another part's box is outside its flesh.
+    """
+    origin, cell, dims, ptr, values = pf[0], pf[1], pf[2], pf[3], pf[4]
+    px, py, pz = X[i, 0], X[i, 1], X[i, 2]
+    rx, ry, rz = V0[i, 0], V0[i, 1], V0[i, 2]
+    worst, wx, wy, wz = 0.0, 0.0, 0.0, 0.0
+    for c in range(c0, c1):
+        b = cand[c]
+        xb, yb, zb = _to_rest(Minv, b, X[i])
+        if not (box[b, 0, 0] <= xb <= box[b, 1, 0] and box[b, 0, 1] <= yb <= box[b, 1, 1]
+                and box[b, 0, 2] <= zb <= box[b, 1, 2]):
+            continue
+        if not _in_grid(origin, cell, dims, b, xb, yb, zb, 0.0):
+            continue
+        # skinning carries b's flesh by a blend of its bone set, so the point's
+        # preimage lies no further from where b's bone alone puts it than the
+        # set's bones put it apart: the field (1-Lipschitz) cannot be negative
+        # there if it is larger than that here
+        s_rigid, _, _, _ = field_at(values, ptr, origin, cell, dims, b, xb, yb, zb, False)
+        if s_rigid >= FAR:
+            continue
+        spread = 0.0
+        for k in range(pf[5][b], pf[5][b + 1]):
+            o = pf[6][k]
+            xo, yo, zo = _to_rest(Minv, o, X[i])
+            spread = max(spread, (xo - xb) ** 2 + (yo - yb) ** 2 + (zo - zb) ** 2)
+        if s_rigid > 1.25 * np.sqrt(spread):
+            continue
+        sb, ux, uy, uz = skinned_field(pf, Q, b, px, py, pz, xb, yb, zb, iterations, False, a)
+        if sb >= 0.0:
+            continue
+        sa, vx, vy, vz = skinned_field(pf, Q, a, px, py, pz, rx, ry, rz, iterations, True, b)
+        ra, _, _, _ = field_at(values, ptr, origin, cell, dims, a, rx, ry, rz, True)
+        rb, _, _, _ = field_at(values, ptr, origin, cell, dims, b, rx, ry, rz, False)
+        C = sb - sa - min(margin[i], rb - ra)
+        if C >= 0.0:
+            continue
+        # only skin inside the other part's flesh is in contact; the constraint
+        # fades in over the first margin of depth, so nothing jumps
+        t = min(1.0, -sb / max(margin[i], 1e-9))
+        C *= t * t * (3.0 - 2.0 * t)
+        # where the two parts' skins run on into each other (across a cut) their
+        # fields rise together and their difference says nothing: fade out
+        nu = np.sqrt((ux * ux + uy * uy + uz * uz) * (vx * vx + vy * vy + vz * vz))
+        cos = (ux * vx + uy * vy + uz * vz) / max(nu, 1e-12)
+        t = min(1.0, max(0.0, (face0 - cos) / (face0 - face1)))
+        C *= t * t * (3.0 - 2.0 * t)
+        if C < worst:
+            worst, wx, wy, wz = C, ux - vx, uy - vy, uz - vz
+    return worst, wx, wy, wz
+
+
+@nb.njit(cache=True, nogil=True)
+def project_contacts(X, V0, verts, side, cand_ptr, cand, Q, Minv, pf, box, margin, face0,
+                     face1, iterations, steps, moved):
+    """Project every vertex of ``verts`` out of the other parts' flesh, up to
+    ``steps`` Newton steps each (vertices are independent: Jacobi). Parts to
+    test for a vertex of part ``a`` are ``cand[cand_ptr[a]:cand_ptr[a + 1]]``.
+    ``moved[i]`` is set for every vertex that moved; returns how many did."""
+    n = 0
+    for k in range(verts.shape[0]):
+        i = verts[k]
+        a = side[i]
+        c0, c1 = cand_ptr[a], cand_ptr[a + 1]
+        if c0 == c1:
+            continue
+        for _ in range(steps):
+            C, gx, gy, gz = worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin,
+                                          face0, face1, iterations)
+            if C >= 0.0:
+                break
+            # where the two fields run nearly parallel their difference is flat:
+            # never step further than twice the violation
+            g2 = max(gx * gx + gy * gy + gz * gz, 0.25)
+            s = -C / g2
+            X[i, 0] += s * gx
+            X[i, 1] += s * gy
+            X[i, 2] += s * gz
+            if not moved[i]:
+                moved[i] = True
+                n += 1
+    return n

@@ -1,0 +1,98 @@
+"""Kernels that shape the skin around bent joints: bulge limit and inflation (numba)."""
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _closest_on_segment(px, py, pz, A, B, s):
+    dx, dy, dz = B[s, 0] - A[s, 0], B[s, 1] - A[s, 1], B[s, 2] - A[s, 2]
+    d2 = dx * dx + dy * dy + dz * dz
+    t = ((px - A[s, 0]) * dx + (py - A[s, 1]) * dy + (pz - A[s, 2]) * dz) / max(d2, 1e-30)
+    t = min(1.0, max(0.0, t))
+    return A[s, 0] + t * dx, A[s, 1] + t * dy, A[s, 2] + t * dz
+
+
+@nb.njit(cache=True, nogil=True)
+def limit_bulge(X, verts, seg, A, B, r0, width, fade):
+    """Keep every vertex of ``verts`` near its rest distance from its bone.
+
+    The paper's bind constraint ``C = |p - p'| - d`` (p' the closest point of
+    the vertex's rest-nearest bone segment ``seg``, posed ``A``-``B``; ``d`` =
+    ``r0``), made one-sided and soft: skin further out than at rest by ``e``
+    is brought to ``width * tanh(e / width)`` (so never more than ``width``
+    out, and unchanged to first order where ``e`` is small), skin nearer than
+    at rest is left to the other stages. ``fade`` (n,) scales the pull per
+    vertex (0 keeps it where it is). Returns how many vertices moved.
+    """
+    n = 0
+    for k in range(verts.shape[0]):
+        i = verts[k]
+        f = fade[i]
+        if f <= 0.0:
+            continue
+        px, py, pz = X[i, 0], X[i, 1], X[i, 2]
+        cx, cy, cz = _closest_on_segment(px, py, pz, A, B, seg[i])
+        ux, uy, uz = px - cx, py - cy, pz - cz
+        r = math.sqrt(ux * ux + uy * uy + uz * uz)
+        e = r - r0[i]
+        if e <= 0.0 or r < 1e-12:
+            continue
+        target = r0[i] + width[i] * math.tanh(e / width[i])
+        s = 1.0 + f * (target / r - 1.0)
+        X[i, 0] = cx + ux * s
+        X[i, 1] = cy + uy * s
+        X[i, 2] = cz + uz * s
+        n += 1
+    return n
+
+
+@nb.njit(cache=True, nogil=True)
+def cone_volume_gradient(X, F, tris, c, inc_ptr, inc, verts, g):
+    """Volume of the cone from ``c`` over triangles ``tris`` of ``X`` and its
+    gradient ``g`` (len(verts), 3) with respect to each vertex of ``verts``
+    (``inc_ptr, inc``: CSR of each of ``verts``' triangles among ``tris``)."""
+    vol = 0.0
+    for t in range(tris.shape[0]):
+        f = tris[t]
+        a, b, d = F[f, 0], F[f, 1], F[f, 2]
+        ax, ay, az = X[a, 0] - c[0], X[a, 1] - c[1], X[a, 2] - c[2]
+        bx, by, bz = X[b, 0] - c[0], X[b, 1] - c[1], X[b, 2] - c[2]
+        dx, dy, dz = X[d, 0] - c[0], X[d, 1] - c[1], X[d, 2] - c[2]
+        vol += (ax * (by * dz - bz * dy) + ay * (bz * dx - bx * dz) + az * (bx * dy - by * dx))
+    for k in range(verts.shape[0]):
+        i = verts[k]
+        gx = gy = gz = 0.0
+        for q in range(inc_ptr[k], inc_ptr[k + 1]):
+            f = tris[inc[q]]
+            # the other two corners in order after i: d(det)/dp_i = their cross product
+            if F[f, 0] == i:
+                o1, o2 = F[f, 1], F[f, 2]
+            elif F[f, 1] == i:
+                o1, o2 = F[f, 2], F[f, 0]
+            else:
+                o1, o2 = F[f, 0], F[f, 1]
+            ux, uy, uz = X[o1, 0] - c[0], X[o1, 1] - c[1], X[o1, 2] - c[2]
+            vx, vy, vz = X[o2, 0] - c[0], X[o2, 1] - c[1], X[o2, 2] - c[2]
+            gx += uy * vz - uz * vy
+            gy += uz * vx - ux * vz
+            gz += ux * vy - uy * vx
+        g[k, 0], g[k, 1], g[k, 2] = gx / 6.0, gy / 6.0, gz / 6.0
+    return vol / 6.0
+
+
+def region_incidence(F: np.ndarray, tris: np.ndarray, verts: np.ndarray):
+    """CSR of each of ``verts``' triangles among ``tris`` (positions into
+    ``tris``), for :func:`cone_volume_gradient`."""
+    corners = F[tris]                                   # (t, 3)
+    rows = np.repeat(np.arange(len(tris)), 3)
+    vid = corners.ravel()
+    pos = np.searchsorted(verts, vid)
+    ok = (pos < len(verts)) & (verts[np.minimum(pos, len(verts) - 1)] == vid)
+    pos, rows = pos[ok], rows[ok]
+    order = np.argsort(pos, kind="stable")
+    ptr = np.searchsorted(pos[order], np.arange(len(verts) + 1)).astype(np.int64)
+    return ptr, rows[order].astype(np.int64)

@@ -1,0 +1,169 @@
+"""The skin's shape at bent joints: no dual-quaternion bulge, and each joint's
+volume kept."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..kernels.shape import cone_volume_gradient, limit_bulge, region_incidence
+from ..kernels.topology import ring_distance
+from ..rigging.weights import point_segment_distance
+from .base import Frame, Stage
+
+
+class Bulge(Stage):
+    """Skin stays within ``bulge_limit`` of its rest distance from its bone.
+
+    Dual-quaternion skinning keeps a bent joint's volume by swinging the skin
+    of its outer side around the joint at a radius larger than the limb's,
+    which shows as a bulge (Kavan et al. 2007 name it). This is the paper's
+    bind constraint on the skin, made one-sided and soft
+    (:func:`~skin_node.kernels.shape.limit_bulge`): skin further from its bone
+    than at rest is drawn back to at most ``bulge_limit`` times its rest
+    distance out, skin nearer than at rest is left as it is. Only skin whose
+    weights a bent joint splits is drawn in (where skinning blends, and so
+    bulges), fading in where the smaller side's weight rises from 0 to 10%.
+    """
+
+    name = "bulge"
+
+    def __init__(self, character, params):
+        super().__init__(character, params)
+        r, skel, V = character.rig, character.skeleton, character.V
+        seg_joint, A, B = skel.bone_segments()
+        D = point_segment_distance(V, A, B)
+        self.seg = np.argmin(D, axis=1).astype(np.int64)
+        self.r0 = D[np.arange(len(D)), self.seg]
+        # how evenly each vertex's weights split across each joint (4 s (1 - s),
+        # s the weight from below the joint)
+        below = skel.subtree()
+        w = self.weights
+        split = np.zeros((len(V), skel.n_joints))
+        for j in range(1, skel.n_joints):
+            s_ = (w.Wval * below[j][w.Widx]).sum(1)
+            split[:, j] = 4.0 * s_ * (1.0 - s_)
+        self.verts = np.flatnonzero(split.max(axis=1) > 0.01).astype(np.int64)
+        # full pull from a tenth of the weight on the other side (split 0.36)
+        self.split = np.minimum(1.0, split[self.verts] / 0.36)
+        self._fade = np.zeros(len(V))
+
+    def __call__(self, fr: Frame) -> None:
+        width = np.maximum(float(self.params["bulge_limit"]) * self.r0, 1e-6)
+        self._fade[self.verts] = (self.split * fr.fade).max(axis=1)
+        fr.counts["bulge_vertices"] = limit_bulge(fr.surface, self.verts, self.seg, fr.seg_A,
+                                                  fr.seg_B, self.r0, width, self._fade)
+
+
+class Inflate(Stage):
+    """Each bent joint's region keeps its rest volume.
+
+    The region is the paper's joint region (skin nearer the joint than
+    ``region_scale`` limb radii); its volume is the cone from the joint's
+    posed centre over its triangles, as :mod:`skin_node.bench.measure`
+    counts it. Where contact flattened a fold or the bulge limit drew the
+    outer side in, the region's other skin moves out along its normals, evenly
+    (a layer, not a lump), fading to nothing at the region's border and over
+    ``inflate_rings`` rings around skin in contact, by at most
+    ``inflate_max`` limb radii.
+    """
+
+    name = "inflate"
+
+    def __init__(self, character, params):
+        super().__init__(character, params)
+        r, skel, F = character.rig, character.skeleton, character.F
+        self.F = F
+        V = character.V
+        self.tris, self.verts, self.mob, self.inc, self.vol0 = [], [], [], [], []
+        below = skel.subtree()
+        w = self.weights
+        for j in range(skel.n_joints):
+            if skel.parents[j] < 0:
+                t = np.zeros(0, np.int64)
+            elif params["inflate_zone"] == "region":
+                t = np.flatnonzero((r.region[F] == j).any(axis=1))
+            else:
+                s_ = (w.Wval * below[j][w.Widx]).sum(1)
+                t = np.flatnonzero(((s_[F] > 0.02) & (s_[F] < 0.98)).any(axis=1))
+            v = np.unique(F[t]).astype(np.int64) if len(t) else np.zeros(0, np.int64)
+            if params["inflate_zone"] == "region":
+                d = np.linalg.norm(V[v] - skel.rest_positions[j], axis=1) / max(r.threshold[j], 1e-9)
+                x = np.clip((1.0 - d) / 0.35, 0.0, 1.0)
+                mob = x * x * (3.0 - 2.0 * x)
+            else:
+                s_ = (w.Wval[v] * below[j][w.Widx[v]]).sum(1)
+                mob = 4.0 * s_ * (1.0 - s_)
+            self.tris.append(t.astype(np.int64))
+            self.verts.append(v)
+            self.mob.append(mob)
+            self.inc.append(region_incidence(F, t, v))
+            c = skel.rest_positions[j]
+            self.vol0.append(float(cone_volume_gradient(V, F, t, c, *self.inc[-1], v,
+                                                        np.empty((len(v), 3)))))
+        self.radius = r.radius
+        # the whole mesh: its volume, and the skin whose weights a joint splits
+        split = np.zeros((len(V), skel.n_joints))
+        for j in range(1, skel.n_joints):
+            s_ = (w.Wval * below[j][w.Widx]).sum(1)
+            split[:, j] = 4.0 * s_ * (1.0 - s_)
+        self.all_tris = np.arange(len(F), dtype=np.int64)
+        self.zverts = np.flatnonzero(split.max(axis=1) > 0.01).astype(np.int64)
+        self.zsplit = np.minimum(1.0, split[self.zverts] / 0.36)
+        self.zinc = region_incidence(F, self.all_tris, self.zverts)
+        self.mesh_vol0 = float(cone_volume_gradient(V, F, self.all_tris, np.zeros(3),
+                                                    *self.zinc, self.zverts,
+                                                    np.empty((len(self.zverts), 3))))
+        n = len(V)
+        self._hops = np.full(n, 1 << 30, dtype=np.int64)
+        self._queue = np.empty(n, dtype=np.int64)
+        self._ptr, self._adj = r.adj_ptr, r.adj
+
+    def __call__(self, fr: Frame) -> None:
+        js = [j for j in np.flatnonzero(fr.bent) if len(self.verts[j])]
+        if not js:
+            return
+        X = fr.surface
+        H = int(self.params["inflate_rings"])
+        free = np.ones(len(X))
+        if fr.touched and H > 0:
+            src = np.concatenate(fr.touched).astype(np.int64)
+            reached = ring_distance(src, self._ptr, self._adj, self._hops, H + 1, self._queue)
+            q = self._queue[:reached]
+            x = self._hops[q] / (H + 1.0)
+            free[q] = x * x * (3.0 - 2.0 * x)
+            self._hops[q] = 1 << 30
+        worst = 1.0
+        cap = float(self.params["inflate_max"])
+        for j in js:
+            v, t = self.verts[j], self.tris[j]
+            m = self.mob[j] * free[v] * fr.fade[j]
+            g = np.empty((len(v), 3))
+            c = fr.G[j, :3, 3]
+            for _ in range(2):
+                vol = cone_volume_gradient(X, self.F, t, c, *self.inc[j], v, g)
+                deficit = self.vol0[j] - vol
+                if deficit <= 0.0:
+                    break
+                a = np.linalg.norm(g, axis=1)
+                den = float((m * a).sum())
+                if den <= 0.0:
+                    break
+                step = np.minimum((deficit / den) * m, cap * self.radius[j])
+                X[v] += step[:, None] * (g / np.maximum(a, 1e-30)[:, None])
+            vol = cone_volume_gradient(X, self.F, t, c, *self.inc[j], v, g)
+            worst = min(worst, vol / self.vol0[j])
+        fr.counts["region_volume_min"] = worst
+        # what the whole mesh still misses past ``inflate_slack`` (skin drawn in
+        # beyond the regions) goes to the skin the bent joints blend, evenly
+        v = self.zverts
+        held = np.zeros(len(X))
+        for j in js:             # the regions have their volume already
+            held[self.verts[j]] = np.maximum(held[self.verts[j]], self.mob[j] * fr.fade[j])
+        m = (self.zsplit * fr.fade).max(axis=1) * free[v] * (1.0 - held[v])
+        g = np.empty((len(v), 3))
+        vol = cone_volume_gradient(X, self.F, self.all_tris, np.zeros(3), *self.zinc, v, g)
+        deficit = (1.0 - float(self.params["inflate_slack"])) * self.mesh_vol0 - vol
+        a = np.linalg.norm(g, axis=1)
+        den = float((m * a).sum())
+        if deficit > 0.0 and den > 0.0:
+            step = np.minimum((deficit / den) * m, cap * self.radius.max())
+            X[v] += step[:, None] * (g / np.maximum(a, 1e-30)[:, None])
