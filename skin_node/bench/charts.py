@@ -16,9 +16,10 @@ ACCURACY = (
     ("region_volume_error_max", "worst |joint-region volume ratio - 1|", abs),
     ("collapse_mm", "max collapse (mm, radial proxy)", lambda v: -v),
     ("bulge_mm", "max bulge (mm, radial proxy)", abs),
-    ("crossings_max", "max skin crossings (vertices)", abs),
-    ("intersections_max", "max skin-through-skin triangle pairs", abs),
-    ("roughness_mm_max", "max joint-region roughness (mm)", abs),
+    ("pairs_max", "max intersecting triangle pairs", abs),
+    ("folds90_max", "max sharp folds (edges turned > 90 deg)", abs),
+    ("surface_roughness_max", "max roughness (umbrella, / rest)", lambda v: v - 1.0),
+    ("crossings_max", "max skin crossings (vertices, the paper's test)", abs),
     ("ref_mean_mm", "mean distance to converged reference (mm)", abs),
 )
 

@@ -28,12 +28,23 @@ Timing
 ``crossings``
     Joint-region vertices that have passed through the skin
     (:func:`skin_node.stages.collision.count_crossings`).
-``intersections`` / ``crumples``
+``intersections`` / ``crumples`` / ``pairs``
     Pairs of triangles of the whole surface that pass through each other,
     found exactly (:class:`skin_node.kernels.intersect.SelfIntersections`),
     independent of the crossing test above: pairs that were three median
     edges or more apart at rest (skin through skin) / nearer ones (the surface
-    crumpled over itself). Counted on the same frames as ``crossings``.
+    crumpled over itself) / all of them (every pair that shares no corner).
+    Counted on the same frames as ``crossings``.
+``folds90`` / ``folds45``
+    Sharp folds: interior edges whose dihedral angle grew by more than 90 / 45
+    degrees from rest (:class:`skin_node.metrics.SurfaceQuality`).
+``roughness`` / ``roughness_p99``
+    The whole surface's mean umbrella-Laplacian length over the same at rest,
+    and the ratio of the 99th percentiles (1 = as smooth as at rest).
+``weight_jump_max`` / ``weight_jumps`` (summary only)
+    The rig's weight continuity under the method's weights: the largest
+    per-edge weight jump (:func:`skin_node.metrics.weight_jumps`, 0 to 2) and
+    how many edges jump by more than 0.5.
 ``roughness_mm``
     Mean umbrella-Laplacian length over all joint-region vertices
     (:func:`skin_node.metrics.roughness`), mm; its rest value is in the summary.
@@ -66,7 +77,7 @@ import numpy as np
 
 from .. import default_clip_name, load_character, make_clip
 from ..kernels.intersect import SelfIntersections
-from ..metrics import mesh_volume, region_volume
+from ..metrics import SurfaceQuality, mesh_volume, region_volume, weight_jumps
 from ..pipeline import PRESETS, STAGE_NAMES, Pipeline
 from ..stages.collision import JointRegions, count_crossings
 
@@ -324,6 +335,7 @@ class SceneMetrics:
         self.V0 = mesh_volume(ch.V, ch.F)
         self.regions = JointRegions(ch)
         self.intersections = SelfIntersections(ch.V, ch.F, 3.0 * self.regions.edge)
+        self.surface = SurfaceQuality(ch.V, ch.F)
         # joint-region volumes at rest, about each joint's rest position
         self.region_joints = np.array([j for j in range(skel.n_joints)
                                        if skel.parents[j] >= 0 and len(self.regions.tris[j])])
@@ -381,7 +393,14 @@ class SceneMetrics:
                             if crossings else np.nan)
         out["intersections"], out["crumples"] = (self.intersections(V) if crossings
                                                  else (np.nan, np.nan))
+        out["pairs"] = out["intersections"] + out["crumples"]
+        out.update(self.surface(V))
         return out
+
+    def weight_continuity(self, weights) -> dict:
+        """``weight_jump_max`` and ``weight_jumps`` (edges over 0.5) of ``weights``."""
+        j = weight_jumps(self.F, weights.Widx, weights.Wval, self.character.skeleton.n_joints)
+        return {"weight_jump_max": float(j.max()), "weight_jumps": int((j > 0.5).sum())}
 
 
 _METRICS: dict = {}
@@ -488,7 +507,8 @@ def run_method(method: Method, scene: Scene, motion: Motion, reference: bool = T
     res.summary = summarize(res, load_s=load_s, build_s=build_s, warm_s=warm_s,
                             ref_warm_s=ref_warm, times=times, roughness_rest_mm=
                             metrics.roughness_rest_mm, tets=len(ch.rig.T),
-                            vertices=len(ch.V))
+                            vertices=len(ch.V),
+                            **metrics.weight_continuity(pipe.stages[0].weights))
     if motion.dense is not None and len(motion.dense) > 1:
         if method.simulates:
             for s in pipe.stages:           # from a fresh start, like the clip's
@@ -534,6 +554,14 @@ def summarize(res: RunResult, times: dict, **extra) -> dict:
         "crossings_max": most("crossings"),
         "intersections_max": most("intersections"),
         "crumples_max": most("crumples"),
+        "pairs_max": most("pairs"),
+        "pairs_deepest": float(col("pairs")[deep]),
+        "folds90_max": float(np.nanmax(col("folds90"))),
+        "folds90_deepest": float(col("folds90")[deep]),
+        "folds45_max": float(np.nanmax(col("folds45"))),
+        "surface_roughness_max": float(np.nanmax(col("roughness"))),
+        "surface_roughness_deepest": float(col("roughness")[deep]),
+        "surface_roughness_p99_max": float(np.nanmax(col("roughness_p99"))),
         "roughness_mm_max": float(np.nanmax(col("roughness_mm"))),
         "inverted_tets_max": float(np.nanmax(col("inverted_tets"))),
         "inverted_skin_tets_max": float(np.nanmax(col("inverted_skin_tets"))),
