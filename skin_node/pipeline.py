@@ -102,12 +102,14 @@ PIPELINE_PARAMS = {
                                    "displacement per round"),
     "bulge_limit": ParamSpec(float, 0.1, 0.001, 2.0, "the most skin stands out from its bone "
                              "beyond its rest distance, in rest distances"),
+    "bulge_smoothing": ParamSpec(int, 8, 0, 100, "Laplacian passes over the bulge limit's "
+                                 "pull"),
     "inflate_rings": ParamSpec(int, 3, 0, 20, "rings around skin in contact over which "
                                "inflation fades in"),
     "inflate_zone": ParamSpec(str, "region", description="what inflation keeps: the paper's "
                               "joint 'region', or the skin whose 'weights' the joint splits",
                               choices=("region", "weights")),
-    "inflate_slack": ParamSpec(float, 0.02, 0.0, 1.0, "the whole mesh may keep this share of "
+    "inflate_slack": ParamSpec(float, 1.0, 0.0, 1.0, "the whole mesh may keep this share of "
                                "its volume lost (what the joint regions do not take back); "
                                "1 leaves it alone"),
     "inflate_max": ParamSpec(float, 0.25, 0.0, 2.0, "the most inflation moves skin, in limb "

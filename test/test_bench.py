@@ -103,14 +103,18 @@ def test_run_method_summary(arm):
     mo = make_motion("elbow_bend", arm, stride=30)
     r = run_method(parse_method("default"), SCENE, mo, ref_frames=1)
     s = r.summary
-    for k in ("ms_total_p50", "ms_total_p90", "ms_pbd_p50", "setup_s", "warmup_s",
+    for k in ("ms_total_p50", "ms_total_p90", "ms_contact_p50", "setup_s", "warmup_s",
               "volume_ratio_deepest", "collapse_mm", "bulge_mm", "crossings_max", "ref_mean_mm",
               "region_volume_ratio_deepest", "roughness_mm_max", "jitter_mm_p50",
-              "jitter_mm_max", "intersections_max", "crumples_max"):
+              "jitter_mm_max", "intersections_max", "crumples_max", "pairs_max",
+              "folds90_max", "folds45_max", "surface_roughness_max",
+              "surface_roughness_p99_max", "weight_jump_max", "weight_jumps"):
         assert k in s and np.isfinite(s[k]), k
     assert s["frames"] == len(mo.frames) and s["ms_total_p90"] >= s["ms_total_p50"] > 0
     assert s["deepest_angle_deg"] > 140
     assert 0.9 < s["volume_ratio_deepest"] < 1.1
+    assert s["pairs_max"] == s["intersections_max"] + s["crumples_max"]
+    assert s["weight_jumps"] == 0 and 0 < s["weight_jump_max"] < 0.5
 
 
 def test_jitter_reads_a_flicker(arm):
@@ -209,7 +213,7 @@ def test_ros_latency_bad_character_is_one_line_and_exit_2(capsys):
 
 def test_ablation_shows_what_each_part_buys(tmp_path, capsys):
     """skin_bench ablation: every variant gets a row, and leaving out the
-    collision or the volume stage costs what they are there for."""
+    contact, the bulge limit or the inflation costs what they are there for."""
     assert cli.main(["ablation", "--scenes", "arm:2000", "--clips", "elbow_bend", "--stride",
                      "10", "--out", str(tmp_path), "--no-progress"]) == 0
     table = capsys.readouterr().out
@@ -217,9 +221,12 @@ def test_ablation_shows_what_each_part_buys(tmp_path, capsys):
     assert set(runs) == {"dqs", "default"} | {n for n, _, _ in cli.ABLATIONS}
     for _, _, what in cli.ABLATIONS:
         assert f"| {what} | arm:2000 | elbow_bend |" in table
-    assert runs["default"]["crossings_max"] == 0 < runs["no-collision"]["crossings_max"]
-    assert runs["no-volume"]["region_volume_ratio_deepest"] < \
+    assert runs["default"]["pairs_max"] * 10 <= runs["no-contact"]["pairs_max"]
+    assert runs["no-contact"]["pairs_max"] > 20
+    assert runs["no-bulge"]["bulge_mm"] > runs["default"]["bulge_mm"] + 3.0
+    assert runs["no-inflate"]["region_volume_ratio_deepest"] < \
         runs["default"]["region_volume_ratio_deepest"] - 0.02
+    assert runs["paper-weights"]["weight_jumps"] >= 0 and runs["default"]["weight_jumps"] == 0
 
 
 def test_a_gltf_characters_own_clips_are_scenes(tmp_path, monkeypatch, capsys):

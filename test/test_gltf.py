@@ -260,15 +260,33 @@ def test_cesiumman_walk_matches_gltf_skinning():
         (err.mean(), err.max())
 
 
-def test_file_weights_in_the_rig(tmp_path):
-    c = load_gltf(write_glb(tmp_path / "bar.glb"))
-    TV = np.array([[0.0, 0.0, 0.02], [0.0, 0.0, 0.98], [0.0, 0.0, 0.5]])
-    Widx, Wval, TWidx, TWval = file_weights(c.Widx, c.Wval, 2, TV, c.V)
-    assert Widx.shape == (8, 3) and TWidx.shape == (3, 3)
-    assert np.allclose(Wval.sum(1), 1.0) and np.allclose(TWval.sum(1), 1.0)
-    dense = np.zeros((3, 2))
-    np.add.at(dense, (np.repeat(np.arange(3), 3), TWidx.ravel()), TWval.ravel())
-    assert dense[0, 0] > 0.9 and dense[1, 1] > 0.9 and 0.3 < dense[2, 0] < 0.7
+def test_file_weights_in_the_rig(tmp_path, monkeypatch):
+    """A file's weights are the character's: the surface keeps them (4 bones
+    at most, normalised), the tet lattice takes their smooth extension."""
+    monkeypatch.setenv("SKIN_NODE_CACHE", str(tmp_path / "cache"))
+    from skin_node import load_character
+    path = write_glb(tmp_path / "bar.glb")
+    c = load_gltf(path)
+    W = file_weights(c.Widx, c.Wval, 2, len(c.V))
+    assert W.shape == (8, 2) and np.allclose(W.sum(1), 1.0)
+    ref = np.zeros((8, 2))
+    np.add.at(ref, (np.repeat(np.arange(8), c.Widx.shape[1]), c.Widx.ravel()), c.Wval.ravel())
+    assert np.allclose(W, ref / ref.sum(1, keepdims=True))
+    with pytest.raises(ValueError, match="outside 0..1"):
+        file_weights(c.Widx + 1, c.Wval, 2, len(c.V))
+    ch = load_character(str(path), tet_count=300, weights="file", progress=False)
+    r = ch.rig
+    dense = np.zeros((len(ch.V), 2))
+    np.add.at(dense, (np.repeat(np.arange(len(ch.V)), r.Widx.shape[1]), r.Widx.ravel()),
+              r.Wval.ravel())
+    assert np.allclose(dense, W, atol=1e-12)            # two bones a vertex: kept as they are
+    T = np.zeros((len(r.TV), 2))
+    np.add.at(T, (np.repeat(np.arange(len(r.TV)), r.TWidx.shape[1]), r.TWidx.ravel()),
+              r.TWval.ravel())
+    assert np.allclose(T.sum(1), 1.0)
+    z = r.TV[:, 2]                      # the bar runs along z once y-up is turned
+    lo, hi = np.argmin(z), np.argmax(z)
+    assert T[lo].max() > 0.9 and T[hi].max() > 0.9 and np.argmax(T[lo]) != np.argmax(T[hi])
     # the weights are part of the cache key, only when they are used
     s = c.skeleton
     a, b = RigOptions(), RigOptions(weights="file")

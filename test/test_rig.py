@@ -103,10 +103,12 @@ def test_tet_edges_unique_and_complete(arm):
 
 # ============================================================ weights
 @pytest.mark.parametrize("mesh", ["surface", "tets"])
-def test_weights_rows(arm, mesh):
+def test_paper_weights_rows(arm, mesh):
+    """The paper's weights, kept in the rig for the pipelines that reproduce it."""
     r = arm.rig
-    W, I, region, P = ((r.Wval, r.Widx, r.region, arm.V) if mesh == "surface"
-                       else (r.TWval, r.TWidx, r.tregion, r.TV))
+    w = r.weights("inverse_distance")
+    W, I, region, P = ((w.Wval, w.Widx, r.region, arm.V) if mesh == "surface"
+                       else (w.TWval, w.TWidx, r.tregion, r.TV))
     skel = arm.skeleton
     assert W.shape == (len(P), 3) and I.shape == (len(P), 3)
     assert np.all(W >= 0)
@@ -131,9 +133,10 @@ def test_weights_rows(arm, mesh):
 
 
 @pytest.mark.parametrize("mesh", ["surface", "tets"])
-def test_weights_follow_inverse_fourth_power(arm, mesh):
+def test_paper_weights_follow_inverse_fourth_power(arm, mesh):
     r = arm.rig
-    W, I, P = (r.Wval, r.Widx, arm.V) if mesh == "surface" else (r.TWval, r.TWidx, r.TV)
+    w = r.weights("inverse_distance")
+    W, I, P = (w.Wval, w.Widx, arm.V) if mesh == "surface" else (w.TWval, w.TWidx, r.TV)
     D, _ = bone_distances(P, arm.skeleton)
     d = np.maximum(np.take_along_axis(D, I, axis=1), 1e-6)
     two = np.flatnonzero(((W > 1e-3).sum(1) == 2) & (W[:, 2] == 0))

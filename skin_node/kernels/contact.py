@@ -102,7 +102,13 @@ def _blend(Q, sets, s0, s1, wvalues, wptr, wdims, origin, cell, j, x, y, z, excl
         b5 += wt * Q[b, 5]
         b6 += wt * Q[b, 6]
         b7 += wt * Q[b, 7]
-    inv = 1.0 / np.sqrt(b0 * b0 + b1 * b1 + b2 * b2 + b3 * b3)
+    norm = np.sqrt(b0 * b0 + b1 * b1 + b2 * b2 + b3 * b3)
+    if norm < 1e-9:
+        # all the weight here is the excluded bone's: the part's own bone carries it
+        b0, b1, b2, b3 = Q[j, 0], Q[j, 1], Q[j, 2], Q[j, 3]
+        b4, b5, b6, b7 = Q[j, 4], Q[j, 5], Q[j, 6], Q[j, 7]
+        norm = 1.0
+    inv = 1.0 / norm
     w0, x0, y0, z0 = b0 * inv, b1 * inv, b2 * inv, b3 * inv
     we, xe, ye, ze = b4 * inv, b5 * inv, b6 * inv, b7 * inv
     tx = 2.0 * (-we * x0 + xe * w0 - ye * z0 + ze * y0)

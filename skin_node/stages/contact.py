@@ -103,12 +103,14 @@ class Contact(Stage):
                 P = X[v] @ Minv[b, :3, :3].T + Minv[b, :3, 3]
                 box[b, 0], box[b, 1] = P.min(0) - reach, P.max(0) + reach
         cand = [[] for _ in range(J)]
+        skinned = np.isfinite(lo[:, 0])
+        corners[~skinned] = 0.0                        # parts without skin: never tested
         for b in np.flatnonzero(self.has):
             C = corners @ Minv[b, :3, :3].T + Minv[b, :3, 3]                  # (J, 8, 3)
             clo, chi = C.min(1), C.max(1)
             overlap = np.all((clo <= self._hi[b]) & (chi >= self._lo[b]), axis=1)
-            for a in np.flatnonzero(overlap):
-                if a == b or not np.isfinite(lo[a, 0]):
+            for a in np.flatnonzero(overlap & skinned):
+                if a == b:
                     continue
                 shift = np.linalg.norm((Minv[b] @ M[a])[:3, 3])
                 if np.arccos(cos[a, b]) < PAIR_ANGLE and shift < PAIR_SHIFT:

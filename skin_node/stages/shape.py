@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels.shape import cone_volume_gradient, limit_bulge, region_incidence
+from ..kernels.solver import laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from ..rigging.weights import point_segment_distance
 from .base import Frame, Stage
@@ -45,25 +46,36 @@ class Bulge(Stage):
         # full pull from a tenth of the weight on the other side (split 0.36)
         self.split = np.minimum(1.0, split[self.verts] / 0.36)
         self._fade = np.zeros(len(V))
+        self._layout = ring_layout(self.verts, r.adj_ptr, r.adj)
 
     def __call__(self, fr: Frame) -> None:
         width = np.maximum(float(self.params["bulge_limit"]) * self.r0, 1e-6)
         self._fade[self.verts] = (self.split * fr.fade).max(axis=1)
-        fr.counts["bulge_vertices"] = limit_bulge(fr.surface, self.verts, self.seg, fr.seg_A,
-                                                  fr.seg_B, self.r0, width, self._fade)
+        X = fr.surface
+        X0 = X.copy()
+        n = limit_bulge(X, self.verts, self.seg, fr.seg_A, fr.seg_B, self.r0, width, self._fade)
+        fr.counts["bulge_vertices"] = n
+        passes = int(self.params["bulge_smoothing"])
+        if n and passes:
+            # each vertex is drawn towards its own nearest bone, and where the
+            # nearest bone changes so does the pull: smooth the pull, not the skin
+            ring, loc, lptr, lnbr = self._layout
+            laplacian_smooth(X, X0, True, ring, loc, lptr, lnbr, 0.5, passes,
+                             np.empty((len(ring), 3)), np.empty((len(loc), 3)))
 
 
 class Inflate(Stage):
-    """Each bent joint's region keeps its rest volume.
+    """Each bent joint's region keeps its rest volume, and the whole mesh its
+    own within ``inflate_slack``.
 
     The region is the paper's joint region (skin nearer the joint than
     ``region_scale`` limb radii); its volume is the cone from the joint's
     posed centre over its triangles, as :mod:`skin_node.bench.measure`
     counts it. Where contact flattened a fold or the bulge limit drew the
-    outer side in, the region's other skin moves out along its normals, evenly
-    (a layer, not a lump), fading to nothing at the region's border and over
-    ``inflate_rings`` rings around skin in contact, by at most
-    ``inflate_max`` limb radii.
+    outer side in, the region's other skin moves out along its normals (in,
+    where contact pushed skin out), evenly (a layer, not a lump), fading to
+    nothing at the region's border and over ``inflate_rings`` rings around
+    skin in contact, by at most ``inflate_max`` limb radii.
     """
 
     name = "inflate"
@@ -106,7 +118,12 @@ class Inflate(Stage):
             s_ = (w.Wval * below[j][w.Widx]).sum(1)
             split[:, j] = 4.0 * s_ * (1.0 - s_)
         self.all_tris = np.arange(len(F), dtype=np.int64)
-        self.zverts = np.flatnonzero(split.max(axis=1) > 0.01).astype(np.int64)
+        # what a region's volume counts (its triangles' corners) is the region's
+        # to keep: the whole mesh takes what it misses from the skin between
+        in_region = np.zeros(len(V), dtype=bool)
+        for t in self.tris:
+            in_region[F[t].ravel()] = True
+        self.zverts = np.flatnonzero((split.max(axis=1) > 0.01) & ~in_region).astype(np.int64)
         self.zsplit = np.minimum(1.0, split[self.zverts] / 0.36)
         self.zinc = region_incidence(F, self.all_tris, self.zverts)
         self.mesh_vol0 = float(cone_volume_gradient(V, F, self.all_tris, np.zeros(3),
@@ -141,29 +158,31 @@ class Inflate(Stage):
             for _ in range(2):
                 vol = cone_volume_gradient(X, self.F, t, c, *self.inc[j], v, g)
                 deficit = self.vol0[j] - vol
-                if deficit <= 0.0:
-                    break
                 a = np.linalg.norm(g, axis=1)
                 den = float((m * a).sum())
-                if den <= 0.0:
+                if den <= 0.0 or abs(deficit) <= 1e-3 * abs(self.vol0[j]):
                     break
-                step = np.minimum((deficit / den) * m, cap * self.radius[j])
+                # contact pushes skin out as well as in: both ways, back to rest
+                lim = cap * self.radius[j]
+                step = np.clip((deficit / den) * m, -lim, lim)
                 X[v] += step[:, None] * (g / np.maximum(a, 1e-30)[:, None])
             vol = cone_volume_gradient(X, self.F, t, c, *self.inc[j], v, g)
             worst = min(worst, vol / self.vol0[j])
         fr.counts["region_volume_min"] = worst
         # what the whole mesh still misses past ``inflate_slack`` (skin drawn in
-        # beyond the regions) goes to the skin the bent joints blend, evenly
+        # beyond the regions) goes to the skin the bent joints blend outside
+        # every region, evenly
         v = self.zverts
-        held = np.zeros(len(X))
-        for j in js:             # the regions have their volume already
-            held[self.verts[j]] = np.maximum(held[self.verts[j]], self.mob[j] * fr.fade[j])
-        m = (self.zsplit * fr.fade).max(axis=1) * free[v] * (1.0 - held[v])
+        m = (self.zsplit * fr.fade).max(axis=1) * free[v]
         g = np.empty((len(v), 3))
         vol = cone_volume_gradient(X, self.F, self.all_tris, np.zeros(3), *self.zinc, v, g)
-        deficit = (1.0 - float(self.params["inflate_slack"])) * self.mesh_vol0 - vol
+        slack = float(self.params["inflate_slack"]) * self.mesh_vol0
+        deficit = self.mesh_vol0 - vol
+        deficit = deficit - slack if deficit > slack else (deficit + slack if deficit < -slack
+                                                          else 0.0)
         a = np.linalg.norm(g, axis=1)
         den = float((m * a).sum())
-        if deficit > 0.0 and den > 0.0:
-            step = np.minimum((deficit / den) * m, cap * self.radius.max())
+        if deficit != 0.0 and den > 0.0:
+            lim = cap * self.radius.max()
+            step = np.clip((deficit / den) * m, -lim, lim)
             X[v] += step[:, None] * (g / np.maximum(a, 1e-30)[:, None])
