@@ -102,7 +102,7 @@ PIPELINE_PARAMS = {
                                    "displacement per round"),
     "bulge_limit": ParamSpec(float, 0.1, 0.001, 2.0, "the most skin stands out from its bone "
                              "beyond its rest distance, in rest distances"),
-    "bulge_smoothing": ParamSpec(int, 8, 0, 100, "Laplacian passes over the bulge limit's "
+    "bulge_smoothing": ParamSpec(int, 4, 0, 100, "Laplacian passes over the bulge limit's "
                                  "pull"),
     "inflate_rings": ParamSpec(int, 3, 0, 20, "rings around skin in contact over which "
                                "inflation fades in"),

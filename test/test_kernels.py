@@ -739,7 +739,7 @@ def test_laplacian_smooth_is_jacobi_on_the_chosen_vertices_only(relative):
     assert np.array_equal(ring[loc], verts) and set(ring) == set(verts) | set(nbr[
         np.concatenate([np.arange(ptr[i], ptr[i + 1]) for i in verts])])
     got = X.copy()
-    laplacian_smooth(got, base, relative, ring, loc, lptr, lnbr, 0.4, 3,
+    laplacian_smooth(got, base, relative, ring, loc, lptr, lnbr, np.empty(0), 0.4, 3,
                      np.empty((len(ring), 3)), np.empty((len(verts), 3)))
     assert np.abs(got - want).max() < 1e-12
     others = np.setdiff1d(np.arange(len(X)), verts)

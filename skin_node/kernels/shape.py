@@ -16,17 +16,34 @@ def _closest_on_segment(px, py, pz, A, B, s):
     return A[s, 0] + t * dx, A[s, 1] + t * dy, A[s, 2] + t * dz
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _pull(px, py, pz, A, B, s, r0, width):
+    """The move that brings ``p`` from ``r0 + e`` to ``r0 + width tanh(e /
+    width)`` from segment ``s`` (none when ``e <= 0``)."""
+    cx, cy, cz = _closest_on_segment(px, py, pz, A, B, s)
+    ux, uy, uz = px - cx, py - cy, pz - cz
+    r = math.sqrt(ux * ux + uy * uy + uz * uz)
+    e = r - r0
+    if e <= 0.0 or r < 1e-12:
+        return 0.0, 0.0, 0.0
+    k = (r0 + width * math.tanh(e / width)) / r - 1.0
+    return ux * k, uy * k, uz * k
+
+
 @nb.njit(cache=True, nogil=True)
-def limit_bulge(X, verts, seg, A, B, r0, width, fade):
+def limit_bulge(X, verts, seg, r0, share, A, B, width, fade):
     """Keep every vertex of ``verts`` near its rest distance from its bone.
 
     The paper's bind constraint ``C = |p - p'| - d`` (p' the closest point of
-    the vertex's rest-nearest bone segment ``seg``, posed ``A``-``B``; ``d`` =
+    the vertex's bone segment, posed ``A``-``B``; ``d`` its rest distance
     ``r0``), made one-sided and soft: skin further out than at rest by ``e``
-    is brought to ``width * tanh(e / width)`` (so never more than ``width``
-    out, and unchanged to first order where ``e`` is small), skin nearer than
-    at rest is left to the other stages. ``fade`` (n,) scales the pull per
-    vertex (0 keeps it where it is). Returns how many vertices moved.
+    is brought to ``width * tanh(e / width)`` out (never more than ``width``,
+    unchanged to first order where ``e`` is small), skin nearer than at rest
+    is left to the other stages. ``seg`` (n, 2) and ``r0`` (n, 2) are each
+    vertex's two nearest rest segments and distances, ``share`` (n,) the part
+    of the pull the second takes: near where the nearest segment changes both
+    pull, so the pull changes smoothly across it. ``fade`` (n,) scales the
+    pull (0 keeps the vertex). Returns how many vertices moved.
     """
     n = 0
     for k in range(verts.shape[0]):
@@ -35,17 +52,16 @@ def limit_bulge(X, verts, seg, A, B, r0, width, fade):
         if f <= 0.0:
             continue
         px, py, pz = X[i, 0], X[i, 1], X[i, 2]
-        cx, cy, cz = _closest_on_segment(px, py, pz, A, B, seg[i])
-        ux, uy, uz = px - cx, py - cy, pz - cz
-        r = math.sqrt(ux * ux + uy * uy + uz * uz)
-        e = r - r0[i]
-        if e <= 0.0 or r < 1e-12:
+        ax, ay, az = _pull(px, py, pz, A, B, seg[i, 0], r0[i, 0], width[i])
+        b = share[i]
+        if b > 0.0:
+            bx, by, bz = _pull(px, py, pz, A, B, seg[i, 1], r0[i, 1], width[i])
+            ax, ay, az = (1.0 - b) * ax + b * bx, (1.0 - b) * ay + b * by, (1.0 - b) * az + b * bz
+        if ax == 0.0 and ay == 0.0 and az == 0.0:
             continue
-        target = r0[i] + width[i] * math.tanh(e / width[i])
-        s = 1.0 + f * (target / r - 1.0)
-        X[i, 0] = cx + ux * s
-        X[i, 1] = cy + uy * s
-        X[i, 2] = cz + uz * s
+        X[i, 0] = px + f * ax
+        X[i, 1] = py + f * ay
+        X[i, 2] = pz + f * az
         n += 1
     return n
 
@@ -87,6 +103,8 @@ def cone_volume_gradient(X, F, tris, c, inc_ptr, inc, verts, g):
 def region_incidence(F: np.ndarray, tris: np.ndarray, verts: np.ndarray):
     """CSR of each of ``verts``' triangles among ``tris`` (positions into
     ``tris``), for :func:`cone_volume_gradient`."""
+    if not len(verts) or not len(tris):
+        return np.zeros(len(verts) + 1, dtype=np.int64), np.zeros(0, dtype=np.int64)
     corners = F[tris]                                   # (t, 3)
     rows = np.repeat(np.arange(len(tris)), 3)
     vid = corners.ravel()

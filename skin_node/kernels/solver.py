@@ -305,12 +305,16 @@ def ring_layout(verts: np.ndarray, ptr: np.ndarray, nbr: np.ndarray):
 
 
 @nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
-def laplacian_smooth(X, base, relative, ring, loc, lptr, lnbr, k, iterations, L, buf):
+def laplacian_smooth(X, base, relative, ring, loc, lptr, lnbr, lw, k, iterations, L, buf):
     """Jacobi Laplacian smoothing of the vertices of a :func:`ring_layout`, in
     place: ``p <- (1-k) p + k mean(one ring)``, ``iterations`` times, of the
     positions ``X`` or, with ``relative``, of the displacements ``X - base``
     (``X = base + smoothed``). ``L`` (len(ring), 3) and ``buf`` (len(loc), 3)
-    are scratch. The ring is read, only the vertices themselves move."""
+    are scratch. The ring is read, only the vertices themselves move. With
+    ``lw`` (one weight per ``lnbr`` entry; empty for an even mean) the mean is
+    weighted (:func:`edge_weights`: a sliver's two close corners move
+    together)."""
+    weighted = lw.shape[0] > 0
     for a in nb.prange(ring.shape[0]):
         i = ring[a]
         for c in range(3):
@@ -319,12 +323,15 @@ def laplacian_smooth(X, base, relative, ring, loc, lptr, lnbr, k, iterations, L,
         for a in nb.prange(loc.shape[0]):
             lo, hi = lptr[a], lptr[a + 1]
             sx = sy = sz = 0.0
+            sw = 0.0
             for b in range(lo, hi):
                 q = lnbr[b]
-                sx += L[q, 0]
-                sy += L[q, 1]
-                sz += L[q, 2]
-            c = k / max(hi - lo, 1)
+                w = lw[b] if weighted else 1.0
+                sx += w * L[q, 0]
+                sy += w * L[q, 1]
+                sz += w * L[q, 2]
+                sw += w
+            c = k / max(sw, 1e-30)
             i = loc[a]
             buf[a, 0] = (1.0 - k) * L[i, 0] + c * sx
             buf[a, 1] = (1.0 - k) * L[i, 1] + c * sy
@@ -336,5 +343,16 @@ def laplacian_smooth(X, base, relative, ring, loc, lptr, lnbr, k, iterations, L,
         i, v = loc[a], ring[loc[a]]
         for c in range(3):
             X[v, c] = base[v, c] + L[i, c] if relative else L[i, c]
+
+
+def edge_weights(V: np.ndarray, ring: np.ndarray, loc: np.ndarray, lptr: np.ndarray,
+                 lnbr: np.ndarray) -> np.ndarray:
+    """Weights ``1 / |edge|`` at rest for the neighbours of a :func:`ring_layout`
+    (``lw`` of :func:`laplacian_smooth`): a displacement smoothed with them
+    keeps the two corners of a short edge together, where an even mean moves
+    them apart by its change over the whole ring and flips the triangle."""
+    rows = np.repeat(ring[loc], np.diff(lptr))
+    d = np.linalg.norm(V[rows] - V[ring[lnbr]], axis=1)
+    return 1.0 / np.maximum(d, 1e-9 * max(float(d.mean()), 1e-30))
 
 

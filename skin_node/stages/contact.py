@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels.contact import project_contacts
-from ..kernels.solver import laplacian_smooth, ring_layout
+from ..kernels.solver import edge_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from .base import Frame, Stage
 from .skinning import matrices_to_dual_quaternions
@@ -151,7 +151,8 @@ class Contact(Stage):
             zone = np.sort(self._queue[:reached])
             self._hops[zone] = 1 << 30
             ring, loc, lptr, lnbr = ring_layout(zone, self._ptr, self._adj)
-            laplacian_smooth(X, X0, True, ring, loc, lptr, lnbr, 0.5, passes,
+            lw = edge_weights(self.V0, ring, loc, lptr, lnbr)
+            laplacian_smooth(X, X0, True, ring, loc, lptr, lnbr, lw, 0.5, passes,
                              np.empty((len(ring), 3)), np.empty((len(zone), 3)))
             # after the first round only the skin near a contact can change
             test = np.intersect1d(zone, verts, assume_unique=True)

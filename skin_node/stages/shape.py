@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels.shape import cone_volume_gradient, limit_bulge, region_incidence
-from ..kernels.solver import laplacian_smooth, ring_layout
+from ..kernels.solver import edge_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from ..rigging.weights import point_segment_distance
 from .base import Frame, Stage
@@ -32,8 +32,16 @@ class Bulge(Stage):
         r, skel, V = character.rig, character.skeleton, character.V
         seg_joint, A, B = skel.bone_segments()
         D = point_segment_distance(V, A, B)
-        self.seg = np.argmin(D, axis=1).astype(np.int64)
-        self.r0 = D[np.arange(len(D)), self.seg]
+        two = np.argsort(D, axis=1, kind="stable")[:, :2]
+        if two.shape[1] == 1:
+            two = np.hstack([two, two])
+        self.seg = np.ascontiguousarray(two, dtype=np.int64)
+        self.r0 = np.ascontiguousarray(np.take_along_axis(D, two, axis=1))
+        # where the second segment is nearly as near, it shares the pull (half
+        # of it at a tie, none once it is 30% further away)
+        gap = (self.r0[:, 1] - self.r0[:, 0]) / np.maximum(0.3 * self.r0[:, 0], 1e-9)
+        x = np.clip(1.0 - gap, 0.0, 1.0)
+        self.share = 0.5 * x * x * (3.0 - 2.0 * x)
         # how evenly each vertex's weights split across each joint (4 s (1 - s),
         # s the weight from below the joint)
         below = skel.subtree()
@@ -47,20 +55,22 @@ class Bulge(Stage):
         self.split = np.minimum(1.0, split[self.verts] / 0.36)
         self._fade = np.zeros(len(V))
         self._layout = ring_layout(self.verts, r.adj_ptr, r.adj)
+        self._lw = edge_weights(V, *self._layout)
 
     def __call__(self, fr: Frame) -> None:
-        width = np.maximum(float(self.params["bulge_limit"]) * self.r0, 1e-6)
+        width = np.maximum(float(self.params["bulge_limit"]) * self.r0[:, 0], 1e-6)
         self._fade[self.verts] = (self.split * fr.fade).max(axis=1)
         X = fr.surface
         X0 = X.copy()
-        n = limit_bulge(X, self.verts, self.seg, fr.seg_A, fr.seg_B, self.r0, width, self._fade)
+        n = limit_bulge(X, self.verts, self.seg, self.r0, self.share, fr.seg_A, fr.seg_B, width,
+                        self._fade)
         fr.counts["bulge_vertices"] = n
         passes = int(self.params["bulge_smoothing"])
         if n and passes:
             # each vertex is drawn towards its own nearest bone, and where the
             # nearest bone changes so does the pull: smooth the pull, not the skin
             ring, loc, lptr, lnbr = self._layout
-            laplacian_smooth(X, X0, True, ring, loc, lptr, lnbr, 0.5, passes,
+            laplacian_smooth(X, X0, True, ring, loc, lptr, lnbr, self._lw, 0.5, passes,
                              np.empty((len(ring), 3)), np.empty((len(loc), 3)))
 
 

@@ -6,6 +6,8 @@ import numpy as np
 from ..kernels.solver import laplacian_smooth, ring_layout
 from .base import Frame, KeyedCache, Stage
 
+_EVEN = np.empty(0)        # an even mean of the one ring (the paper's)
+
 
 class Smooth(Stage):
     """Laplacian smoothing of the bent joints' skin, ``smoothing_iterations``
@@ -56,4 +58,4 @@ class Smooth(Stage):
             return
         kf = k * float(fr.fade[fr.bent].max())
         laplacian_smooth(fr.surface, fr.surface_base, mode != "position", ring, loc, lptr,
-                         lnbr, kf, n, self._ring[:len(ring)], self._buf[:len(vs)])
+                         lnbr, _EVEN, kf, n, self._ring[:len(ring)], self._buf[:len(vs)])
