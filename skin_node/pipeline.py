@@ -93,7 +93,7 @@ PIPELINE_PARAMS = {
                                "character's own: smooth bone heat, or a file's) or "
                                "'inverse_distance' (the paper's, 3 bones in joint regions, 2 "
                                "elsewhere)", choices=WEIGHT_SCHEMES),
-    "contact_margin": ParamSpec(float, 0.5, 0.0, 3.0, "gap each side of a fold keeps from the "
+    "contact_margin": ParamSpec(float, 0.75, 0.0, 3.0, "gap each side of a fold keeps from the "
                                 "surface where the two parts meet, in mean edges"),
     "contact_rounds": ParamSpec(int, 8, 0, 50, "projection and smoothing rounds of the contact "
                                 "stage"),
