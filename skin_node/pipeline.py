@@ -97,6 +97,8 @@ PIPELINE_PARAMS = {
                                 "surface where the two parts meet, in mean edges"),
     "contact_rounds": ParamSpec(int, 8, 0, 50, "projection and smoothing rounds of the contact "
                                 "stage"),
+    "contact_exact_every": ParamSpec(int, 2, 1, 50, "rounds between exact projections of the "
+                                     "contact stage (tangent planes hold the skin between)"),
     "contact_rings": ParamSpec(int, 3, 0, 20, "rings around skin in contact that follow it"),
     "contact_smoothing": ParamSpec(int, 4, 0, 50, "Laplacian passes over the contact's "
                                    "displacement per round"),
@@ -107,9 +109,12 @@ PIPELINE_PARAMS = {
     "inflate_rings": ParamSpec(int, 3, 0, 20, "rings around skin in contact over which "
                                "inflation fades in"),
     "inflate_zone": ParamSpec(str, "region", description="what inflation keeps: the paper's "
-                              "joint 'region', or the skin whose 'weights' the joint splits",
-                              choices=("region", "weights")),
-    "inflate_slack": ParamSpec(float, 1.0, 0.0, 1.0, "the whole mesh may keep this share of "
+                              "joint 'region', the skin within 'reach' (inflate_reach limb "
+                              "radii) of the joint, or the skin whose 'weights' the joint "
+                              "splits", choices=("region", "reach", "weights")),
+    "inflate_reach": ParamSpec(float, 2.5, 0.5, 10.0, "with inflate_zone 'reach': how far "
+                               "from the joint, in limb radii"),
+    "inflate_slack": ParamSpec(float, 0.02, 0.0, 1.0, "the whole mesh may keep this share of "
                                "its volume lost (what the joint regions do not take back); "
                                "1 leaves it alone"),
     "inflate_max": ParamSpec(float, 0.25, 0.0, 2.0, "the most inflation moves skin, in limb "

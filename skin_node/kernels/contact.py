@@ -17,11 +17,15 @@ violated constraint is projected along its gradient,
 """
 from __future__ import annotations
 
+import math
+
 import numba as nb
 import numpy as np
 
 #: Field value outside a part's grid: no contact possible there.
 FAR = 1e9
+#: ``skin_node.rigging.fields.REACH``: how far the other-weight grid looks.
+REACH = 3
 
 
 @nb.njit(cache=True, nogil=True)
@@ -80,15 +84,19 @@ def _blend(Q, sets, s0, s1, wvalues, wptr, wdims, origin, cell, j, x, y, z, excl
     fu, fv, fw = u - i, v - k, w - l
     ns = s1 - s0
     j0 = sets[s0]
+    # the eight corners' trilinear weights and offsets into the grid
+    gu, gv, gw = 1.0 - fu, 1.0 - fv, 1.0 - fw
+    base = wptr[j] + ((i * ny + k) * nz + l) * ns
+    sx, sy = ny * nz * ns, nz * ns
+    c000, c001, c010, c011 = gu * gv * gw, gu * gv * fw, gu * fv * gw, gu * fv * fw
+    c100, c101, c110, c111 = fu * gv * gw, fu * gv * fw, fu * fv * gw, fu * fv * fw
     b0 = b1 = b2 = b3 = b4 = b5 = b6 = b7 = 0.0
     for c in range(ns):
-        wt = 0.0
-        for corner in range(8):
-            di, dk, dl = corner & 1, (corner >> 1) & 1, (corner >> 2) & 1
-            cw = ((fu if di else 1.0 - fu) * (fv if dk else 1.0 - fv)
-                  * (fw if dl else 1.0 - fw))
-            node = ((i + di) * ny + (k + dk)) * nz + (l + dl)
-            wt += cw * wvalues[wptr[j] + node * ns + c]
+        o = base + c
+        wt = (c000 * wvalues[o] + c001 * wvalues[o + ns] + c010 * wvalues[o + sy]
+              + c011 * wvalues[o + sy + ns] + c100 * wvalues[o + sx]
+              + c101 * wvalues[o + sx + ns] + c110 * wvalues[o + sx + sy]
+              + c111 * wvalues[o + sx + sy + ns])
         b = sets[s0 + c]
         if wt == 0.0 or b == exclude:
             continue
@@ -138,7 +146,7 @@ def skinned_field(pf, Q, j, px, py, pz, x, y, z, iterations, clamp, exclude):
     would put it. The blend leaves out bone ``exclude`` (-1: none). Returns
     (value, gx, gy, gz); value :data:`FAR` outside the grid.
     """
-    origin, cell, dims, ptr, values, sptr, sets, wdims, wptr, wvalues = pf
+    origin, cell, dims, ptr, values, sptr, sets, wdims, wptr, wvalues = pf[:10]
     w0 = x0 = y0 = z0 = 0.0
     for _ in range(iterations):
         w0, x0, y0, z0, tx, ty, tz = _blend(Q, sets, sptr[j], sptr[j + 1], wvalues, wptr,
@@ -156,6 +164,19 @@ def _to_rest(Minv, j, p):
     return (Minv[j, 0, 0] * p[0] + Minv[j, 0, 1] * p[1] + Minv[j, 0, 2] * p[2] + Minv[j, 0, 3],
             Minv[j, 1, 0] * p[0] + Minv[j, 1, 1] * p[1] + Minv[j, 1, 2] * p[2] + Minv[j, 1, 3],
             Minv[j, 2, 0] * p[0] + Minv[j, 2, 1] * p[1] + Minv[j, 2, 2] * p[2] + Minv[j, 2, 3])
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _other_weight(pf, j, x, y, z):
+    """``PartFields.wother`` of part ``j`` at its weight node nearest rest
+    point ``(x, y, z)`` (clamped to the grid)."""
+    origin, cell, wdims, wother, optr = pf[0], pf[1], pf[7], pf[10], pf[11]
+    h = 2.0 * cell[j]
+    nx, ny, nz = wdims[j, 0], wdims[j, 1], wdims[j, 2]
+    i = min(max(int(round((x - origin[j, 0]) / h)), 0), nx - 1)
+    k = min(max(int(round((y - origin[j, 1]) / h)), 0), ny - 1)
+    l = min(max(int(round((z - origin[j, 2]) / h)), 0), nz - 1)
+    return wother[optr[j] + (i * ny + k) * nz + l]
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -195,10 +216,12 @@ def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, face0, fa
             continue
         if not _in_grid(origin, cell, dims, b, xb, yb, zb, 0.0):
             continue
-        # skinning carries b's flesh by a blend of its bone set, so the point's
+        # skinning carries b's flesh by a blend of its bone set: the point's
         # preimage lies no further from where b's bone alone puts it than the
-        # set's bones put it apart: the field (1-Lipschitz) cannot be negative
-        # there if it is larger than that here
+        # other bones' weight there times how far they put the point apart, so
+        # the field (1-Lipschitz) cannot be negative there if it is larger
+        # than that here (the weight is the most within REACH nodes, which
+        # covers the preimage while that distance is within it)
         s_rigid, _, _, _ = field_at(values, ptr, origin, cell, dims, b, xb, yb, zb, False)
         if s_rigid >= FAR:
             continue
@@ -207,7 +230,8 @@ def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, face0, fa
             o = pf[6][k]
             xo, yo, zo = _to_rest(Minv, o, X[i])
             spread = max(spread, (xo - xb) ** 2 + (yo - yb) ** 2 + (zo - zb) ** 2)
-        if s_rigid > 1.25 * np.sqrt(spread):
+        shift = 1.25 * np.sqrt(spread) * _other_weight(pf, b, xb, yb, zb)
+        if s_rigid > shift and shift <= REACH * 2.0 * cell[b]:
             continue
         sb, ux, uy, uz = skinned_field(pf, Q, b, px, py, pz, xb, yb, zb, iterations, False, a)
         if sb >= 0.0:
@@ -233,20 +257,24 @@ def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, face0, fa
     return worst, wx, wy, wz
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, parallel=True)
 def project_contacts(X, V0, verts, side, cand_ptr, cand, Q, Minv, pf, box, margin, face0,
-                     face1, iterations, steps, moved):
+                     face1, iterations, steps, moved, plane):
     """Project every vertex of ``verts`` out of the other parts' flesh, up to
-    ``steps`` Newton steps each (vertices are independent: Jacobi). Parts to
+    ``steps`` Newton steps each (vertices are independent: Jacobi, so they
+    run in parallel and the result does not depend on the threads). Parts to
     test for a vertex of part ``a`` are ``cand[cand_ptr[a]:cand_ptr[a + 1]]``.
-    ``moved[i]`` is set for every vertex that moved; returns how many did."""
-    n = 0
-    for k in range(verts.shape[0]):
+    ``moved[i]`` is set for every vertex that moved, and ``plane[i]`` (n, 6)
+    holds where it went and the unit gradient of its constraint there: the
+    constraint's tangent half-space (:func:`hold_planes`)."""
+    for k in nb.prange(verts.shape[0]):
         i = verts[k]
         a = side[i]
         c0, c1 = cand_ptr[a], cand_ptr[a + 1]
         if c0 == c1:
             continue
+        gx = gy = gz = 0.0
+        went = False
         for _ in range(steps):
             C, gx, gy, gz = worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin,
                                           face0, face1, iterations)
@@ -259,7 +287,95 @@ def project_contacts(X, V0, verts, side, cand_ptr, cand, Q, Minv, pf, box, margi
             X[i, 0] += s * gx
             X[i, 1] += s * gy
             X[i, 2] += s * gz
-            if not moved[i]:
-                moved[i] = True
+            went = True
+        if went:
+            moved[i] = True
+            # written whenever the vertex moved (a flat gradient holds nothing),
+            # so no frame reads another frame's plane
+            g = np.sqrt(gx * gx + gy * gy + gz * gz)
+            g = 1.0 / g if g > 1e-12 else 0.0
+            plane[i, 0], plane[i, 1], plane[i, 2] = X[i, 0], X[i, 1], X[i, 2]
+            plane[i, 3], plane[i, 4], plane[i, 5] = gx * g, gy * g, gz * g
+
+
+@nb.njit(cache=True, nogil=True)
+def hold_planes(X, verts, moved, plane):
+    """Keep every moved vertex of ``verts`` on the free side of its
+    constraint's tangent plane (``plane[i]``: a point and the unit normal),
+    the constraint linearised where the last projection left it: between two
+    exact projections, smoothing and this cost a dot product a vertex."""
+    for k in range(verts.shape[0]):
+        i = verts[k]
+        if not moved[i]:
+            continue
+        d = ((X[i, 0] - plane[i, 0]) * plane[i, 3] + (X[i, 1] - plane[i, 1]) * plane[i, 4]
+             + (X[i, 2] - plane[i, 2]) * plane[i, 5])
+        if d < 0.0:
+            X[i, 0] -= d * plane[i, 3]
+            X[i, 1] -= d * plane[i, 4]
+            X[i, 2] -= d * plane[i, 5]
+
+
+@nb.njit(cache=True, nogil=True)
+def contact_pairs(X, order, pptr, M, Minv, has, lo, hi, reach, min_angle, box, cand_ptr,
+                  cand):
+    """The part pairs to test in pose ``M`` (J, 4, 4), and each part's box.
+
+    ``box[b]`` (2, 3): part ``b``'s posed skin (vertices ``order[pptr[b]:
+    pptr[b+1]]`` of ``X``) carried back by its bone alone, bounded, grown by
+    ``reach``. Part ``b`` is a candidate for the skin of part ``a`` when ``b``
+    has a field (``has``), ``a``'s posed skin box carried into ``b``'s rest
+    frame overlaps ``b``'s grid (``lo``, ``hi``), and their bones turned at
+    least ``min_angle`` from each other since rest. Writes the candidates of
+    part ``a`` to ``cand[cand_ptr[a]:cand_ptr[a + 1]]``; returns how many."""
+    J = M.shape[0]
+    plo = np.full((J, 3), np.inf)
+    phi = np.full((J, 3), -np.inf)
+    for a in range(J):
+        for q in range(pptr[a], pptr[a + 1]):
+            i = order[q]
+            for d in range(3):
+                plo[a, d] = min(plo[a, d], X[i, d])
+                phi[a, d] = max(phi[a, d], X[i, d])
+        for d in range(3):
+            box[a, 0, d], box[a, 1, d] = np.inf, -np.inf
+        for q in range(pptr[a], pptr[a + 1]):
+            x, y, z = _to_rest(Minv, a, X[order[q]])
+            box[a, 0, 0], box[a, 1, 0] = min(box[a, 0, 0], x), max(box[a, 1, 0], x)
+            box[a, 0, 1], box[a, 1, 1] = min(box[a, 0, 1], y), max(box[a, 1, 1], y)
+            box[a, 0, 2], box[a, 1, 2] = min(box[a, 0, 2], z), max(box[a, 1, 2], z)
+        for d in range(3):
+            box[a, 0, d] -= reach
+            box[a, 1, d] += reach
+    n = 0
+    corner = np.empty(3)
+    for a in range(J):
+        cand_ptr[a] = n
+        if pptr[a + 1] == pptr[a]:
+            continue
+        for b in range(J):
+            if b == a or not has[b]:
+                continue
+            # the bones' turn since rest: the angle of R_a^T R_b
+            tr = 0.0
+            for r in range(3):
+                for c in range(3):
+                    tr += M[a, c, r] * M[b, c, r]
+            if math.acos(min(1.0, max(-1.0, 0.5 * (tr - 1.0)))) < min_angle:
+                continue
+            clo = np.full(3, np.inf)
+            chi = np.full(3, -np.inf)
+            for c in range(8):
+                corner[0] = phi[a, 0] if c & 1 else plo[a, 0]
+                corner[1] = phi[a, 1] if c & 2 else plo[a, 1]
+                corner[2] = phi[a, 2] if c & 4 else plo[a, 2]
+                x, y, z = _to_rest(Minv, b, corner)
+                clo[0], chi[0] = min(clo[0], x), max(chi[0], x)
+                clo[1], chi[1] = min(clo[1], y), max(chi[1], y)
+                clo[2], chi[2] = min(clo[2], z), max(chi[2], z)
+            if (clo[0] <= hi[b, 0] and chi[0] >= lo[b, 0] and clo[1] <= hi[b, 1]
+                    and chi[1] >= lo[b, 1] and clo[2] <= hi[b, 2] and chi[2] >= lo[b, 2]):
+                cand[n] = b
                 n += 1
+    cand_ptr[J] = n
     return n

@@ -289,19 +289,48 @@ def embed_update(base, X, Xbase, Etet, Ebary, verts, out):
 
 
 def ring_layout(verts: np.ndarray, ptr: np.ndarray, nbr: np.ndarray):
-    """The compact layout :func:`laplacian_smooth` works in: ``verts`` and their
-    one ring gathered into ``ring`` (sorted), ``loc`` the position of each of
-    ``verts`` in it, and the verts' adjacency as CSR ``lptr``/``lnbr`` into
-    ``ring``. Gathered, a joint region's few thousand vertices stay in cache
-    through the passes, where the whole surface and its adjacency would not."""
-    verts = np.asarray(verts, dtype=np.int64)
-    counts = ptr[verts + 1] - ptr[verts]
-    lptr = np.zeros(len(verts) + 1, dtype=np.int64)
-    np.cumsum(counts, out=lptr[1:])
-    idx = np.repeat(ptr[verts], counts) + (np.arange(lptr[-1]) - np.repeat(lptr[:-1], counts))
-    ring = np.union1d(verts, nbr[idx]).astype(np.int64)
-    return (ring, np.searchsorted(ring, verts).astype(np.int64), lptr,
-            np.searchsorted(ring, nbr[idx]).astype(np.int32))
+    """The compact layout :func:`laplacian_smooth` works in: ``verts`` (sorted)
+    and their one ring gathered into ``ring`` (sorted), ``loc`` the position of
+    each of ``verts`` in it, and the verts' adjacency as CSR ``lptr``/``lnbr``
+    into ``ring``. Gathered, a joint region's few thousand vertices stay in
+    cache through the passes, where the whole surface and its adjacency would
+    not."""
+    verts = np.ascontiguousarray(verts, dtype=np.int64)
+    return _ring_layout(verts, ptr, nbr, np.full(len(ptr) - 1, -1, dtype=np.int64))
+
+
+@nb.njit(cache=True, nogil=True)
+def _ring_layout(verts, ptr, nbr, pos):
+    n = 0
+    for k in range(verts.shape[0]):
+        i = verts[k]
+        if pos[i] < 0:
+            pos[i] = 0
+            n += 1
+        for b in range(ptr[i], ptr[i + 1]):
+            q = nbr[b]
+            if pos[q] < 0:
+                pos[q] = 0
+                n += 1
+    ring = np.empty(n, dtype=np.int64)
+    m = 0
+    for v in range(pos.shape[0]):
+        if pos[v] >= 0:
+            pos[v] = m
+            ring[m] = v
+            m += 1
+    loc = np.empty(verts.shape[0], dtype=np.int64)
+    lptr = np.zeros(verts.shape[0] + 1, dtype=np.int64)
+    for k in range(verts.shape[0]):
+        i = verts[k]
+        loc[k] = pos[i]
+        lptr[k + 1] = lptr[k] + ptr[i + 1] - ptr[i]
+    lnbr = np.empty(lptr[-1], dtype=np.int32)
+    for k in range(verts.shape[0]):
+        i = verts[k]
+        for b in range(ptr[i], ptr[i + 1]):
+            lnbr[lptr[k] + b - ptr[i]] = pos[nbr[b]]
+    return ring, loc, lptr, lnbr
 
 
 @nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
@@ -353,6 +382,8 @@ def edge_weights(V: np.ndarray, ring: np.ndarray, loc: np.ndarray, lptr: np.ndar
     them apart by its change over the whole ring and flips the triangle."""
     rows = np.repeat(ring[loc], np.diff(lptr))
     d = np.linalg.norm(V[rows] - V[ring[lnbr]], axis=1)
+    if not len(d):
+        return d
     return 1.0 / np.maximum(d, 1e-9 * max(float(d.mean()), 1e-30))
 
 

@@ -34,7 +34,10 @@ class PartFields(NamedTuple):
     bone set ``sets[sptr[j]:sptr[j + 1]]`` (the bone, its parent, children and
     siblings) on a grid of twice the spacing (``wdims``, ``wptr``; channels
     contiguous per node, summing to 1), with which a posed point is carried
-    back to the rest point that skinning would have put there.
+    back to the rest point that skinning would have put there; and ``wother``
+    (one per weight node, part ``j``'s from ``optr[j]``), the most weight
+    other bones take within :data:`REACH` weight nodes: where it is 0 the
+    flesh moves with its bone alone.
     """
 
     origin: np.ndarray
@@ -47,6 +50,12 @@ class PartFields(NamedTuple):
     wdims: np.ndarray
     wptr: np.ndarray
     wvalues: np.ndarray
+    wother: np.ndarray
+    optr: np.ndarray
+
+
+#: How far (in weight-grid nodes) ``PartFields.wother`` looks around a node.
+REACH = 3
 
 
 def lattice_sampler(TV: np.ndarray, cube: float, TW: np.ndarray):
@@ -152,7 +161,7 @@ def part_fields(V: np.ndarray, F: np.ndarray, W: np.ndarray, sample_weights, cel
     part = np.argmax(W, axis=1)
     sets = bone_sets(dense_weights(*continuous_top_k(W, influences), n_parts), part, n_parts)
     wdims = np.zeros((n_parts, 3), dtype=np.int64)
-    wchunks = []
+    wchunks, ochunks = [], []
     origin = np.zeros((n_parts, 3))
     cells = np.zeros(n_parts)
     dims = np.zeros((n_parts, 3), dtype=np.int64)
@@ -162,6 +171,7 @@ def part_fields(V: np.ndarray, F: np.ndarray, W: np.ndarray, sample_weights, cel
         if not mine.any():
             chunks.append(np.zeros(0, np.float32))
             wchunks.append(np.zeros(0, np.float32))
+            ochunks.append(np.zeros(0, np.float32))
             continue
         lo, hi = V[mine].min(0) - pad, V[mine].max(0) + pad
         h = max(cell, float((hi - lo).max()) / (max_nodes - 1))
@@ -198,6 +208,9 @@ def part_fields(V: np.ndarray, F: np.ndarray, W: np.ndarray, sample_weights, cel
         Ws = np.where(tot > 1e-6, Ws / np.maximum(tot, 1e-12), np.eye(len(sets[j]))[0])
         wdims[j] = wd
         wchunks.append(Ws.astype(np.float32).ravel())
+        other = ndimage.maximum_filter((1.0 - Ws[:, 0]).reshape(tuple(wd)), size=2 * REACH + 1,
+                                       mode="nearest")
+        ochunks.append(other.astype(np.float32).ravel())
     ptr = np.zeros(n_parts + 1, dtype=np.int64)
     ptr[1:] = np.cumsum([len(c) for c in chunks])
     wptr = np.zeros(n_parts + 1, dtype=np.int64)
@@ -207,4 +220,7 @@ def part_fields(V: np.ndarray, F: np.ndarray, W: np.ndarray, sample_weights, cel
     return PartFields(origin=origin, cell=cells, dims=dims, ptr=ptr,
                       values=np.concatenate(chunks), sptr=sptr,
                       sets=np.array([b for c in sets for b in c], dtype=np.int64),
-                      wdims=wdims, wptr=wptr, wvalues=np.concatenate(wchunks))
+                      wdims=wdims, wptr=wptr, wvalues=np.concatenate(wchunks),
+                      wother=np.concatenate(ochunks),
+                      optr=np.concatenate([[0], np.cumsum([len(c) for c in ochunks])]).astype(
+                          np.int64))

@@ -8,7 +8,7 @@ from ..kernels.shape import cone_volume_gradient, limit_bulge, region_incidence
 from ..kernels.solver import edge_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from ..rigging.weights import point_segment_distance
-from .base import Frame, Stage
+from .base import Frame, KeyedCache, Stage
 
 
 class Bulge(Stage):
@@ -50,27 +50,52 @@ class Bulge(Stage):
         for j in range(1, skel.n_joints):
             s_ = (w.Wval * below[j][w.Widx]).sum(1)
             split[:, j] = 4.0 * s_ * (1.0 - s_)
-        self.verts = np.flatnonzero(split.max(axis=1) > 0.01).astype(np.int64)
-        # full pull from a tenth of the weight on the other side (split 0.36)
-        self.split = np.minimum(1.0, split[self.verts] / 0.36)
+        # per joint: the skin it splits, and how much of the pull it gets
+        # (full from a tenth of the weight on the other side: split 0.36)
+        self.jverts = [np.flatnonzero(split[:, j] > 0.01).astype(np.int64)
+                       for j in range(skel.n_joints)]
+        self.jsplit = [np.minimum(1.0, split[v, j] / 0.36) for j, v in enumerate(self.jverts)]
         self._fade = np.zeros(len(V))
-        self._layout = ring_layout(self.verts, r.adj_ptr, r.adj)
-        self._lw = edge_weights(V, *self._layout)
+        self._V, self._ptr, self._adj = V, r.adj_ptr, r.adj
+        self._sets = KeyedCache()
+        self._width = (None, None)
+
+    def _set(self, bent: np.ndarray):
+        """The skin the bent joints split, its ring layout and edge weights."""
+        def make():
+            js = [j for j in np.flatnonzero(bent) if len(self.jverts[j])]
+            v = (np.unique(np.concatenate([self.jverts[j] for j in js])) if js
+                 else np.zeros(0, np.int64))
+            lay = ring_layout(v, self._ptr, self._adj)
+            return v, lay, edge_weights(self._V, *lay)
+        return self._sets.get(bent.tobytes(), make)
 
     def __call__(self, fr: Frame) -> None:
-        width = np.maximum(float(self.params["bulge_limit"]) * self.r0[:, 0], 1e-6)
-        self._fade[self.verts] = (self.split * fr.fade).max(axis=1)
+        bent = fr.fade > 0.0
+        verts, (ring, loc, lptr, lnbr), lw = self._set(bent)
+        if not len(verts):
+            fr.counts["bulge_vertices"] = 0
+            return
+        limit = float(self.params["bulge_limit"])
+        if self._width[0] != limit:
+            self._width = (limit, np.maximum(limit * self.r0[:, 0], 1e-6))
+        fade = self._fade
+        fade[verts] = 0.0
+        for j in np.flatnonzero(bent):
+            v = self.jverts[j]
+            fade[v] = np.maximum(fade[v], self.jsplit[j] * fr.fade[j])
         X = fr.surface
-        X0 = X.copy()
-        n = limit_bulge(X, self.verts, self.seg, self.r0, self.share, fr.seg_A, fr.seg_B, width,
-                        self._fade)
+        X0 = X[ring].copy()
+        n = limit_bulge(X, verts, self.seg, self.r0, self.share, fr.seg_A, fr.seg_B,
+                        self._width[1], fade)
         fr.counts["bulge_vertices"] = n
         passes = int(self.params["bulge_smoothing"])
         if n and passes:
+            base = X.copy()
+            base[ring] = X0
             # each vertex is drawn towards its own nearest bone, and where the
             # nearest bone changes so does the pull: smooth the pull, not the skin
-            ring, loc, lptr, lnbr = self._layout
-            laplacian_smooth(X, X0, True, ring, loc, lptr, lnbr, self._lw, 0.5, passes,
+            laplacian_smooth(X, base, True, ring, loc, lptr, lnbr, lw, 0.5, passes,
                              np.empty((len(ring), 3)), np.empty((len(loc), 3)))
 
 
@@ -103,12 +128,18 @@ class Inflate(Stage):
                 t = np.zeros(0, np.int64)
             elif params["inflate_zone"] == "region":
                 t = np.flatnonzero((r.region[F] == j).any(axis=1))
+            elif params["inflate_zone"] == "reach":
+                d = np.linalg.norm(V - skel.rest_positions[j], axis=1)
+                near = d < float(params["inflate_reach"]) * r.radius[j]
+                t = np.flatnonzero(near[F].any(axis=1))
             else:
                 s_ = (w.Wval * below[j][w.Widx]).sum(1)
                 t = np.flatnonzero(((s_[F] > 0.02) & (s_[F] < 0.98)).any(axis=1))
             v = np.unique(F[t]).astype(np.int64) if len(t) else np.zeros(0, np.int64)
-            if params["inflate_zone"] == "region":
-                d = np.linalg.norm(V[v] - skel.rest_positions[j], axis=1) / max(r.threshold[j], 1e-9)
+            if params["inflate_zone"] in ("region", "reach"):
+                edge = r.threshold[j] if params["inflate_zone"] == "region" else \
+                    float(params["inflate_reach"]) * r.radius[j]
+                d = np.linalg.norm(V[v] - skel.rest_positions[j], axis=1) / max(edge, 1e-9)
                 x = np.clip((1.0 - d) / 0.35, 0.0, 1.0)
                 mob = x * x * (3.0 - 2.0 * x)
             else:
@@ -128,12 +159,7 @@ class Inflate(Stage):
             s_ = (w.Wval * below[j][w.Widx]).sum(1)
             split[:, j] = 4.0 * s_ * (1.0 - s_)
         self.all_tris = np.arange(len(F), dtype=np.int64)
-        # what a region's volume counts (its triangles' corners) is the region's
-        # to keep: the whole mesh takes what it misses from the skin between
-        in_region = np.zeros(len(V), dtype=bool)
-        for t in self.tris:
-            in_region[F[t].ravel()] = True
-        self.zverts = np.flatnonzero((split.max(axis=1) > 0.01) & ~in_region).astype(np.int64)
+        self.zverts = np.flatnonzero(split.max(axis=1) > 0.01).astype(np.int64)
         self.zsplit = np.minimum(1.0, split[self.zverts] / 0.36)
         self.zinc = region_incidence(F, self.all_tris, self.zverts)
         self.mesh_vol0 = float(cone_volume_gradient(V, F, self.all_tris, np.zeros(3),
@@ -158,16 +184,20 @@ class Inflate(Stage):
             x = self._hops[q] / (H + 1.0)
             free[q] = x * x * (3.0 - 2.0 * x)
             self._hops[q] = 1 << 30
+        if float(self.params["inflate_slack"]) < 1.0:
+            self._whole(fr, free)
         worst = 1.0
         cap = float(self.params["inflate_max"])
         for j in js:
             v, t = self.verts[j], self.tris[j]
-            m = self.mob[j] * free[v] * fr.fade[j]
             g = np.empty((len(v), 3))
             c = fr.G[j, :3, 3]
-            for _ in range(2):
+            for _ in range(4):
                 vol = cone_volume_gradient(X, self.F, t, c, *self.inc[j], v, g)
                 deficit = self.vol0[j] - vol
+                # skin in contact may sink into its own flesh, not swell into
+                # the other's: it takes part in giving volume back, not in taking it
+                m = self.mob[j] * fr.fade[j] * (free[v] if deficit > 0.0 else 1.0)
                 a = np.linalg.norm(g, axis=1)
                 den = float((m * a).sum())
                 if den <= 0.0 or abs(deficit) <= 1e-3 * abs(self.vol0[j]):
@@ -179,9 +209,13 @@ class Inflate(Stage):
             vol = cone_volume_gradient(X, self.F, t, c, *self.inc[j], v, g)
             worst = min(worst, vol / self.vol0[j])
         fr.counts["region_volume_min"] = worst
-        # what the whole mesh still misses past ``inflate_slack`` (skin drawn in
-        # beyond the regions) goes to the skin the bent joints blend outside
-        # every region, evenly
+
+    def _whole(self, fr: Frame, free: np.ndarray) -> None:
+        """The whole mesh's volume back to within ``inflate_slack`` of rest,
+        from the skin the bent joints blend (regions included: the regions
+        are set right after), evenly."""
+        X = fr.surface
+        cap = float(self.params["inflate_max"])
         v = self.zverts
         m = (self.zsplit * fr.fade).max(axis=1) * free[v]
         g = np.empty((len(v), 3))
