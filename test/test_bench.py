@@ -155,8 +155,9 @@ def test_stability_map_short(arm):
     assert [r["case"] for r in res] == ["jitter", "long"]
     for r in res:
         assert {"stable", "failed", "nan", "max_offset_m", "inverted_max", "crossings_max",
-                "drift_mm", "frames"} <= set(r)
+                "pairs_max", "folds90_max", "drift_mm", "frames"} <= set(r)
         assert r["stable"], r
+        assert r["pairs_max"] == 0 and r["folds90_max"] <= 10, r
     assert set(CASES) == {"bend180", "twist360", "jumps", "jitter", "long"}
 
 

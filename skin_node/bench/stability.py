@@ -25,11 +25,17 @@ Failures (what a cell lists)
                others do not use them). Flipped tets that carry no skin (lattice
                cells crushed inside a fold) are counted in ``inverted_all``
                but are not a failure: the skin never sees them;
-``crossings``  skin passed through skin (:func:`count_crossings` > 0);
+``crossings``  skin passed through skin by the paper's vertex test
+               (:func:`count_crossings` > 0);
+``pairs``      skin passed through skin, counted exactly: any intersecting pair
+               of triangles that share no corner
+               (:class:`~skin_node.kernels.intersect.SelfIntersections`);
+``folds``      more than :data:`FOLDS` sharp folds (edges whose dihedral angle
+               grew by more than 90 degrees, :class:`~skin_node.metrics.SurfaceQuality`);
 ``drift``      after the run, the rest pose is deformed once and differs from
                the rest mesh by more than 1 mm somewhere.
-Inverted tets and crossings are checked every ``check_every`` frames and on
-the last frame of a case; NaN and explosion on every frame.
+Inverted tets, crossings, pairs and folds are checked every ``check_every``
+frames and on the last frame of a case; NaN and explosion on every frame.
 """
 from __future__ import annotations
 
@@ -42,6 +48,8 @@ from ..stages.collision import count_crossings
 CASES = ("bend180", "twist360", "jumps", "jitter", "long")
 EXPLOSION_M = 0.5
 DRIFT_MM = 1.0
+#: Sharp folds a case may leave before it counts as failed.
+FOLDS = 10
 
 
 def case_frames(case: str, character, frames: int | None = None,
@@ -96,7 +104,7 @@ def run_case(method: Method, scene: Scene, case: str, frames: int | None = None,
     metrics = scene_metrics(scene)
     pipe = method.build(ch)
     nan = False
-    worst_m = inverted = inverted_all = crossings = 0.0
+    worst_m = inverted = inverted_all = crossings = pairs = folds = 0.0
     T = len(Q)
     for t, q in enumerate(Q):
         V = pipe.deform(q)
@@ -112,6 +120,8 @@ def run_case(method: Method, scene: Scene, case: str, frames: int | None = None,
                 inverted = max(inverted, inverted_tets(fr.tet, ch, skin_only=True))
                 inverted_all = max(inverted_all, inverted_tets(fr.tet, ch))
             crossings = max(crossings, count_crossings(V, ch.V, ch.F, fr.M, metrics.regions))
+            pairs = max(pairs, len(metrics.intersections.pairs(V)))
+            folds = max(folds, metrics.surface(V)["folds90"])
         if progress is not None:
             progress.update(1)
     R = pipe.deform(ch.skeleton.rest_pose())
@@ -126,12 +136,17 @@ def run_case(method: Method, scene: Scene, case: str, frames: int | None = None,
         failed.append("inverted")
     if crossings > 0:
         failed.append("crossings")
+    if pairs > 0:
+        failed.append("pairs")
+    if folds > FOLDS:
+        failed.append("folds")
     if drift > DRIFT_MM:
         failed.append("drift")
     return {"method": method.name, "scene": scene.label, "case": case, "frames": T,
             "stable": not failed, "failed": failed, "nan": nan, "max_offset_m": worst_m,
             "inverted_max": int(inverted),
-            "inverted_all": int(inverted_all), "crossings_max": int(crossings), "drift_mm": drift}
+            "inverted_all": int(inverted_all), "crossings_max": int(crossings),
+            "pairs_max": int(pairs), "folds90_max": int(folds), "drift_mm": drift}
 
 
 def stability_map(methods, scene="arm:2000", cases=CASES, long_frames: int = 100_000,
