@@ -191,9 +191,10 @@ def _in_grid(origin, cell, dims, j, x, y, z, pad):
 
 @nb.njit(cache=True, nogil=True)
 def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, face0, face1,
-                  iterations):
+                  iterations, only):
     """The most violated contact constraint of vertex ``i`` of part ``a``
-    among parts ``cand[c0:c1]``: (C, gradient x, y, z); C >= 0 when none is.
+    among parts ``cand[c0:c1]`` (only part ``only`` if that is >= 0): (C,
+    gradient x, y, z, the part); C >= 0 when none is.
 
     Each part's flesh is where skinning puts it, blended with every bone but
     the other party's: near their shared joint each side moves as its own
@@ -207,9 +208,11 @@ def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, face0, fa
     origin, cell, dims, ptr, values = pf[0], pf[1], pf[2], pf[3], pf[4]
     px, py, pz = X[i, 0], X[i, 1], X[i, 2]
     rx, ry, rz = V0[i, 0], V0[i, 1], V0[i, 2]
-    worst, wx, wy, wz = 0.0, 0.0, 0.0, 0.0
+    worst, wx, wy, wz, wb = 0.0, 0.0, 0.0, 0.0, -1
     for c in range(c0, c1):
         b = cand[c]
+        if only >= 0 and b != only:
+            continue
         xb, yb, zb = _to_rest(Minv, b, X[i])
         if not (box[b, 0, 0] <= xb <= box[b, 1, 0] and box[b, 0, 1] <= yb <= box[b, 1, 1]
                 and box[b, 0, 2] <= zb <= box[b, 1, 2]):
@@ -253,20 +256,23 @@ def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, face0, fa
         t = min(1.0, max(0.0, (face0 - cos) / (face0 - face1)))
         C *= t * t * (3.0 - 2.0 * t)
         if C < worst:
-            worst, wx, wy, wz = C, ux - vx, uy - vy, uz - vz
-    return worst, wx, wy, wz
+            worst, wx, wy, wz, wb = C, ux - vx, uy - vy, uz - vz, b
+    return worst, wx, wy, wz, wb
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
 def project_contacts(X, V0, verts, side, cand_ptr, cand, Q, Minv, pf, box, margin, face0,
-                     face1, iterations, steps, moved, plane):
+                     face1, iterations, steps, moved, plane, hit, recheck):
     """Project every vertex of ``verts`` out of the other parts' flesh, up to
     ``steps`` Newton steps each (vertices are independent: Jacobi, so they
     run in parallel and the result does not depend on the threads). Parts to
     test for a vertex of part ``a`` are ``cand[cand_ptr[a]:cand_ptr[a + 1]]``.
-    ``moved[i]`` is set for every vertex that moved, and ``plane[i]`` (n, 6)
-    holds where it went and the unit gradient of its constraint there: the
-    constraint's tangent half-space (:func:`hold_planes`)."""
+    ``moved[i]`` is set for every vertex that moved, ``hit[i]`` to the part it
+    was projected out of, and ``plane[i]`` (n, 6) holds where it went and the
+    unit gradient of its constraint there: the constraint's tangent
+    half-space (:func:`hold_planes`). With ``recheck`` a vertex that was
+    projected out of a part before is tested against that part alone (the
+    frame's other parts were tested and were not in contact with it)."""
     for k in nb.prange(verts.shape[0]):
         i = verts[k]
         a = side[i]
@@ -275,11 +281,13 @@ def project_contacts(X, V0, verts, side, cand_ptr, cand, Q, Minv, pf, box, margi
             continue
         gx = gy = gz = 0.0
         went = False
+        only = hit[i] if recheck else -1
         for _ in range(steps):
-            C, gx, gy, gz = worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin,
-                                          face0, face1, iterations)
+            C, gx, gy, gz, b = worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box,
+                                             margin, face0, face1, iterations, only)
             if C >= 0.0:
                 break
+            hit[i] = b
             # where the two fields run nearly parallel their difference is flat:
             # never step further than twice the violation
             g2 = max(gx * gx + gy * gy + gz * gz, 0.25)

@@ -100,6 +100,18 @@ def cone_volume_gradient(X, F, tris, c, inc_ptr, inc, verts, g):
     return vol / 6.0
 
 
+@nb.njit(cache=True, nogil=True)
+def enclosed_volume(X, F):
+    """The volume a closed surface encloses (the signed cones from the origin)."""
+    vol = 0.0
+    for f in range(F.shape[0]):
+        a, b, d = F[f, 0], F[f, 1], F[f, 2]
+        vol += (X[a, 0] * (X[b, 1] * X[d, 2] - X[b, 2] * X[d, 1])
+                + X[a, 1] * (X[b, 2] * X[d, 0] - X[b, 0] * X[d, 2])
+                + X[a, 2] * (X[b, 0] * X[d, 1] - X[b, 1] * X[d, 0]))
+    return vol / 6.0
+
+
 def region_incidence(F: np.ndarray, tris: np.ndarray, verts: np.ndarray):
     """CSR of each of ``verts``' triangles among ``tris`` (positions into
     ``tris``), for :func:`cone_volume_gradient`."""

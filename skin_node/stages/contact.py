@@ -68,6 +68,7 @@ class Contact(Stage):
         self._queue = np.empty(n, dtype=np.int64)
         self._moved = np.zeros(n, dtype=np.bool_)
         self._plane = np.zeros((n, 6))
+        self._hit = np.full(n, -1, dtype=np.int64)
         self._J = J
 
     def pairs(self, fr: Frame):
@@ -104,8 +105,9 @@ class Contact(Stage):
         rounds = int(self.params["contact_rounds"])
         rings = int(self.params["contact_rings"])
         passes = int(self.params["contact_smoothing"])
-        plane = self._plane
-        project_contacts(X, *args, moved, plane)
+        plane, hit = self._plane, self._hit
+        hit[verts] = -1
+        project_contacts(X, *args, moved, plane, hit, False)
         if not moved.any():
             fr.counts["contact_vertices"] = 0
             return
@@ -126,7 +128,7 @@ class Contact(Stage):
             # smoothing pushed into contact)
             laplacian_smooth(X, X0, True, ring, loc, lptr, lnbr, lw, 0.5, passes, L, buf)
             if (r + 1) % exact == 0 or r == rounds - 1:
-                project_contacts(X, self.V0, near, *args[2:], moved, plane)
+                project_contacts(X, self.V0, near, *args[2:], moved, plane, hit, True)
             else:
                 hold_planes(X, zone, moved, plane)
         touched = np.flatnonzero(moved)

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels.shape import cone_volume_gradient, limit_bulge, region_incidence
+from ..kernels.shape import (cone_volume_gradient, enclosed_volume, limit_bulge,
+                             region_incidence)
 from ..kernels.solver import edge_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from ..rigging.weights import point_segment_distance
@@ -153,18 +154,17 @@ class Inflate(Stage):
             self.vol0.append(float(cone_volume_gradient(V, F, t, c, *self.inc[-1], v,
                                                         np.empty((len(v), 3)))))
         self.radius = r.radius
-        # the whole mesh: its volume, and the skin whose weights a joint splits
-        split = np.zeros((len(V), skel.n_joints))
-        for j in range(1, skel.n_joints):
-            s_ = (w.Wval * below[j][w.Widx]).sum(1)
-            split[:, j] = 4.0 * s_ * (1.0 - s_)
-        self.all_tris = np.arange(len(F), dtype=np.int64)
-        self.zverts = np.flatnonzero(split.max(axis=1) > 0.01).astype(np.int64)
-        self.zsplit = np.minimum(1.0, split[self.zverts] / 0.36)
-        self.zinc = region_incidence(F, self.all_tris, self.zverts)
-        self.mesh_vol0 = float(cone_volume_gradient(V, F, self.all_tris, np.zeros(3),
-                                                    *self.zinc, self.zverts,
-                                                    np.empty((len(self.zverts), 3))))
+        # the whole mesh: its volume, and per joint the skin whose weights it
+        # splits (how evenly: 4 s (1 - s), full from a tenth on the other side)
+        self.jverts, self.jsplit = [], []
+        for j in range(skel.n_joints):
+            s_ = (w.Wval * below[j][w.Widx]).sum(1) if j else np.zeros(len(V))
+            sp = 4.0 * s_ * (1.0 - s_)
+            v = np.flatnonzero(sp > 0.01).astype(np.int64)
+            self.jverts.append(v)
+            self.jsplit.append(np.minimum(1.0, sp[v] / 0.36))
+        self.mesh_vol0 = float(enclosed_volume(V, F))
+        self._zones = KeyedCache()
         n = len(V)
         self._hops = np.full(n, 1 << 30, dtype=np.int64)
         self._queue = np.empty(n, dtype=np.int64)
@@ -210,23 +210,41 @@ class Inflate(Stage):
             worst = min(worst, vol / self.vol0[j])
         fr.counts["region_volume_min"] = worst
 
+    def _zone(self, bent: np.ndarray):
+        """The skin the bent joints split, its triangles and their CSR."""
+        def make():
+            js = [j for j in np.flatnonzero(bent) if len(self.jverts[j])]
+            v = (np.unique(np.concatenate([self.jverts[j] for j in js])) if js
+                 else np.zeros(0, np.int64))
+            t = np.flatnonzero(np.isin(self.F, v).any(axis=1)).astype(np.int64)
+            return v, t, region_incidence(self.F, t, v)
+        return self._zones.get(bent.tobytes(), make)
+
     def _whole(self, fr: Frame, free: np.ndarray) -> None:
         """The whole mesh's volume back to within ``inflate_slack`` of rest,
         from the skin the bent joints blend (regions included: the regions
         are set right after), evenly."""
         X = fr.surface
-        cap = float(self.params["inflate_max"])
-        v = self.zverts
-        m = (self.zsplit * fr.fade).max(axis=1) * free[v]
-        g = np.empty((len(v), 3))
-        vol = cone_volume_gradient(X, self.F, self.all_tris, np.zeros(3), *self.zinc, v, g)
+        vol = enclosed_volume(X, self.F)
         slack = float(self.params["inflate_slack"]) * self.mesh_vol0
         deficit = self.mesh_vol0 - vol
         deficit = deficit - slack if deficit > slack else (deficit + slack if deficit < -slack
                                                           else 0.0)
+        if deficit == 0.0:
+            return
+        v, t, inc = self._zone(fr.bent)
+        if not len(v):
+            return
+        m = np.zeros(len(X))
+        for j in np.flatnonzero(fr.bent):
+            u = self.jverts[j]
+            m[u] = np.maximum(m[u], self.jsplit[j] * fr.fade[j])
+        m = m[v] * free[v]
+        g = np.empty((len(v), 3))
+        cone_volume_gradient(X, self.F, t, np.zeros(3), *inc, v, g)
         a = np.linalg.norm(g, axis=1)
         den = float((m * a).sum())
-        if deficit != 0.0 and den > 0.0:
-            lim = cap * self.radius.max()
+        if den > 0.0:
+            lim = float(self.params["inflate_max"]) * self.radius.max()
             step = np.clip((deficit / den) * m, -lim, lim)
             X[v] += step[:, None] * (g / np.maximum(a, 1e-30)[:, None])
