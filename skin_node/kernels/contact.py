@@ -144,7 +144,8 @@ def skinned_field(pf, Q, j, px, py, pz, x, y, z, iterations, clamp, exclude):
     guess ``x``, T the part's blend at x), so flesh that skinning bends with
     a third bone is where the skin really is, not where its own bone alone
     would put it. The blend leaves out bone ``exclude`` (-1: none). Returns
-    (value, gx, gy, gz); value :data:`FAR` outside the grid.
+    (value, gx, gy, gz, x, y, z), the last three the rest point it settled
+    on; value :data:`FAR` outside the grid.
     """
     origin, cell, dims, ptr, values, sptr, sets, wdims, wptr, wvalues = pf[:10]
     w0 = x0 = y0 = z0 = 0.0
@@ -154,29 +155,46 @@ def skinned_field(pf, Q, j, px, py, pz, x, y, z, iterations, clamp, exclude):
         x, y, z = _rotate(w0, -x0, -y0, -z0, px - tx, py - ty, pz - tz)
     val, gx, gy, gz = field_at(values, ptr, origin, cell, dims, j, x, y, z, clamp)
     if val >= FAR:
-        return FAR, 0.0, 0.0, 0.0
+        return FAR, 0.0, 0.0, 0.0, x, y, z
     gx, gy, gz = _rotate(w0, x0, y0, z0, gx, gy, gz)
-    return val, gx, gy, gz
+    return val, gx, gy, gz, x, y, z
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _to_rest(Minv, j, p):
-    return (Minv[j, 0, 0] * p[0] + Minv[j, 0, 1] * p[1] + Minv[j, 0, 2] * p[2] + Minv[j, 0, 3],
-            Minv[j, 1, 0] * p[0] + Minv[j, 1, 1] * p[1] + Minv[j, 1, 2] * p[2] + Minv[j, 1, 3],
-            Minv[j, 2, 0] * p[0] + Minv[j, 2, 1] * p[1] + Minv[j, 2, 2] * p[2] + Minv[j, 2, 3])
+def _to_rest(Minv, j, px, py, pz):
+    """Posed point ``p`` carried back by bone ``j`` alone (``Minv[j]``)."""
+    return (Minv[j, 0, 0] * px + Minv[j, 0, 1] * py + Minv[j, 0, 2] * pz + Minv[j, 0, 3],
+            Minv[j, 1, 0] * px + Minv[j, 1, 1] * py + Minv[j, 1, 2] * pz + Minv[j, 1, 3],
+            Minv[j, 2, 0] * px + Minv[j, 2, 1] * py + Minv[j, 2, 2] * pz + Minv[j, 2, 3])
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _other_weight(pf, j, x, y, z):
-    """``PartFields.wother`` of part ``j`` at its weight node nearest rest
-    point ``(x, y, z)`` (clamped to the grid)."""
-    origin, cell, wdims, wother, optr = pf[0], pf[1], pf[7], pf[10], pf[11]
-    h = 2.0 * cell[j]
-    nx, ny, nz = wdims[j, 0], wdims[j, 1], wdims[j, 2]
-    i = min(max(int(round((x - origin[j, 0]) / h)), 0), nx - 1)
-    k = min(max(int(round((y - origin[j, 1]) / h)), 0), ny - 1)
-    l = min(max(int(round((z - origin[j, 2]) / h)), 0), nz - 1)
-    return wother[optr[j] + (i * ny + k) * nz + l]
+def _reach(pf, Minv, b, a, px, py, pz, xb, yb, zb):
+    """How far skinning can carry part ``b``'s flesh near rest point ``x_b``
+    from where bone ``b`` alone puts it, for the posed point ``p``: the sum
+    over ``b``'s other bones (but ``a``, left out of the blend) of their
+    most weight near there (``PartFields.wreach``, the weight node nearest
+    ``x_b``) times how far apart they and ``b`` carry ``p`` back."""
+    origin, cell, sptr, sets, wdims, wptr, wreach = (pf[0], pf[1], pf[5], pf[6], pf[7], pf[8],
+                                                      pf[10])
+    h = 2.0 * cell[b]
+    nx, ny, nz = wdims[b, 0], wdims[b, 1], wdims[b, 2]
+    i = min(max(int(round((xb - origin[b, 0]) / h)), 0), nx - 1)
+    k = min(max(int(round((yb - origin[b, 1]) / h)), 0), ny - 1)
+    l = min(max(int(round((zb - origin[b, 2]) / h)), 0), nz - 1)
+    ns = sptr[b + 1] - sptr[b]
+    base = wptr[b] + ((i * ny + k) * nz + l) * ns
+    out = 0.0
+    for c in range(1, ns):                 # channel 0 is b's own bone
+        o = sets[sptr[b] + c]
+        if o == a:
+            continue
+        w = wreach[base + c]
+        if w <= 0.0:
+            continue
+        xo, yo, zo = _to_rest(Minv, o, px, py, pz)
+        out += w * math.sqrt((xo - xb) ** 2 + (yo - yb) ** 2 + (zo - zb) ** 2)
+    return out
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -191,10 +209,13 @@ def _in_grid(origin, cell, dims, j, x, y, z, pad):
 
 @nb.njit(cache=True, nogil=True)
 def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, face0, face1,
-                  iterations, only):
+                  iterations, only, pre):
     """The most violated contact constraint of vertex ``i`` of part ``a``
-    among parts ``cand[c0:c1]`` (only part ``only`` if that is >= 0): (C,
-    gradient x, y, z, the part); C >= 0 when none is.
+    among parts ``cand[c0:c1]``: (C, gradient x, y, z, the part); C >= 0
+    when none is. ``pre[i]`` (6,) gets the rest points the two parts' fields
+    were read at for that part. With ``only`` >= 0 that part alone is tested
+    (it was this vertex's worst a moment ago), carried from ``pre[i]`` with
+    one iteration: the skin has moved by a fraction of a margin since.
 
     Each part's flesh is where skinning puts it, blended with every bone but
     the other party's: near their shared joint each side moves as its own
@@ -209,60 +230,83 @@ def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, face0, fa
     px, py, pz = X[i, 0], X[i, 1], X[i, 2]
     rx, ry, rz = V0[i, 0], V0[i, 1], V0[i, 2]
     worst, wx, wy, wz, wb = 0.0, 0.0, 0.0, 0.0, -1
+    if only >= 0:
+        b = only
+        sb, ux, uy, uz, qbx, qby, qbz = skinned_field(pf, Q, b, px, py, pz, pre[i, 0],
+                                                      pre[i, 1], pre[i, 2], 1, False, a)
+        if sb >= 0.0:
+            return worst, wx, wy, wz, wb
+        sa, vx, vy, vz, qax, qay, qaz = skinned_field(pf, Q, a, px, py, pz, pre[i, 3],
+                                                      pre[i, 4], pre[i, 5], 1, True, b)
+        C = _gated(sb, sa, ux, uy, uz, vx, vy, vz, margin[i], pf, a, b, rx, ry, rz, face0,
+                   face1)
+        if C < 0.0:
+            pre[i, 0], pre[i, 1], pre[i, 2] = qbx, qby, qbz
+            pre[i, 3], pre[i, 4], pre[i, 5] = qax, qay, qaz
+            return C, ux - vx, uy - vy, uz - vz, b
+        return worst, wx, wy, wz, wb
     for c in range(c0, c1):
         b = cand[c]
-        if only >= 0 and b != only:
-            continue
-        xb, yb, zb = _to_rest(Minv, b, X[i])
+        xb, yb, zb = _to_rest(Minv, b, X[i, 0], X[i, 1], X[i, 2])
         if not (box[b, 0, 0] <= xb <= box[b, 1, 0] and box[b, 0, 1] <= yb <= box[b, 1, 1]
                 and box[b, 0, 2] <= zb <= box[b, 1, 2]):
             continue
         if not _in_grid(origin, cell, dims, b, xb, yb, zb, 0.0):
             continue
-        # skinning carries b's flesh by a blend of its bone set: the point's
-        # preimage lies no further from where b's bone alone puts it than the
-        # other bones' weight there times how far they put the point apart, so
-        # the field (1-Lipschitz) cannot be negative there if it is larger
-        # than that here (the weight is the most within REACH nodes, which
-        # covers the preimage while that distance is within it)
+        # skinning carries b's flesh by a blend of its bone set (without a):
+        # the point's preimage lies no further from where b's bone alone puts
+        # it than its other bones' weight there times how far they put the
+        # point apart (:func:`_reach`), so the field (1-Lipschitz) cannot be
+        # negative there if it is larger than that here (the weights are the
+        # most within REACH nodes, which covers the preimage while that
+        # distance is within it)
         s_rigid, _, _, _ = field_at(values, ptr, origin, cell, dims, b, xb, yb, zb, False)
         if s_rigid >= FAR:
             continue
-        spread = 0.0
-        for k in range(pf[5][b], pf[5][b + 1]):
-            o = pf[6][k]
-            xo, yo, zo = _to_rest(Minv, o, X[i])
-            spread = max(spread, (xo - xb) ** 2 + (yo - yb) ** 2 + (zo - zb) ** 2)
-        shift = 1.25 * np.sqrt(spread) * _other_weight(pf, b, xb, yb, zb)
+        shift = 1.25 * _reach(pf, Minv, b, a, px, py, pz, xb, yb, zb)
         if s_rigid > shift and shift <= REACH * 2.0 * cell[b]:
             continue
-        sb, ux, uy, uz = skinned_field(pf, Q, b, px, py, pz, xb, yb, zb, iterations, False, a)
+        sb, ux, uy, uz, qbx, qby, qbz = skinned_field(pf, Q, b, px, py, pz, xb, yb, zb,
+                                                      iterations, False, a)
         if sb >= 0.0:
             continue
-        sa, vx, vy, vz = skinned_field(pf, Q, a, px, py, pz, rx, ry, rz, iterations, True, b)
-        ra, _, _, _ = field_at(values, ptr, origin, cell, dims, a, rx, ry, rz, True)
-        rb, _, _, _ = field_at(values, ptr, origin, cell, dims, b, rx, ry, rz, False)
-        C = sb - sa - min(margin[i], rb - ra)
-        if C >= 0.0:
-            continue
-        # only skin inside the other part's flesh is in contact; the constraint
-        # fades in over the first margin of depth, so nothing jumps
-        t = min(1.0, -sb / max(margin[i], 1e-9))
-        C *= t * t * (3.0 - 2.0 * t)
-        # where the two parts' skins run on into each other (across a cut) their
-        # fields rise together and their difference says nothing: fade out
-        nu = np.sqrt((ux * ux + uy * uy + uz * uz) * (vx * vx + vy * vy + vz * vz))
-        cos = (ux * vx + uy * vy + uz * vz) / max(nu, 1e-12)
-        t = min(1.0, max(0.0, (face0 - cos) / (face0 - face1)))
-        C *= t * t * (3.0 - 2.0 * t)
+        sa, vx, vy, vz, qax, qay, qaz = skinned_field(pf, Q, a, px, py, pz, rx, ry, rz,
+                                                      iterations, True, b)
+        C = _gated(sb, sa, ux, uy, uz, vx, vy, vz, margin[i], pf, a, b, rx, ry, rz, face0,
+                   face1)
         if C < worst:
             worst, wx, wy, wz, wb = C, ux - vx, uy - vy, uz - vz, b
+            pre[i, 0], pre[i, 1], pre[i, 2] = qbx, qby, qbz
+            pre[i, 3], pre[i, 4], pre[i, 5] = qax, qay, qaz
     return worst, wx, wy, wz, wb
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _gated(sb, sa, ux, uy, uz, vx, vy, vz, margin, pf, a, b, rx, ry, rz, face0, face1):
+    """The constraint ``s_b - s_a - min(m, rest)`` of a vertex inside part
+    ``b``'s flesh (``sb`` < 0), faded in over the first margin of depth and
+    out where the two parts' gradients agree; >= 0 when satisfied."""
+    origin, cell, dims, ptr, values = pf[0], pf[1], pf[2], pf[3], pf[4]
+    ra, _, _, _ = field_at(values, ptr, origin, cell, dims, a, rx, ry, rz, True)
+    rb, _, _, _ = field_at(values, ptr, origin, cell, dims, b, rx, ry, rz, False)
+    C = sb - sa - min(margin, rb - ra)
+    if C >= 0.0:
+        return C
+    # only skin inside the other part's flesh is in contact; the constraint
+    # fades in over the first margin of depth, so nothing jumps
+    t = min(1.0, -sb / max(margin, 1e-9))
+    C *= t * t * (3.0 - 2.0 * t)
+    # where the two parts' skins run on into each other (across a cut) their
+    # fields rise together and their difference says nothing: fade out
+    nu = np.sqrt((ux * ux + uy * uy + uz * uz) * (vx * vx + vy * vy + vz * vz))
+    cos = (ux * vx + uy * vy + uz * vz) / max(nu, 1e-12)
+    t = min(1.0, max(0.0, (face0 - cos) / (face0 - face1)))
+    return C * t * t * (3.0 - 2.0 * t)
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
 def project_contacts(X, V0, verts, side, cand_ptr, cand, Q, Minv, pf, box, margin, face0,
-                     face1, iterations, steps, moved, plane, hit, recheck):
+                     face1, iterations, steps, moved, plane, hit, recheck, pre):
     """Project every vertex of ``verts`` out of the other parts' flesh, up to
     ``steps`` Newton steps each (vertices are independent: Jacobi, so they
     run in parallel and the result does not depend on the threads). Parts to
@@ -272,19 +316,31 @@ def project_contacts(X, V0, verts, side, cand_ptr, cand, Q, Minv, pf, box, margi
     unit gradient of its constraint there: the constraint's tangent
     half-space (:func:`hold_planes`). With ``recheck`` a vertex that was
     projected out of a part before is tested against that part alone (the
-    frame's other parts were tested and were not in contact with it)."""
+    frame's other parts were tested and were not in contact with it),
+    carried from where it was read last (``pre``, see :func:`worst_contact`)."""
     for k in nb.prange(verts.shape[0]):
         i = verts[k]
         a = side[i]
         c0, c1 = cand_ptr[a], cand_ptr[a + 1]
         if c0 == c1:
             continue
+        # most skin lies outside every candidate's box: that test alone first
+        inside = False
+        for c in range(c0, c1):
+            b = cand[c]
+            xb, yb, zb = _to_rest(Minv, b, X[i, 0], X[i, 1], X[i, 2])
+            if (box[b, 0, 0] <= xb <= box[b, 1, 0] and box[b, 0, 1] <= yb <= box[b, 1, 1]
+                    and box[b, 0, 2] <= zb <= box[b, 1, 2]):
+                inside = True
+                break
+        if not inside:
+            continue
         gx = gy = gz = 0.0
         went = False
         only = hit[i] if recheck else -1
         for _ in range(steps):
             C, gx, gy, gz, b = worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box,
-                                             margin, face0, face1, iterations, only)
+                                             margin, face0, face1, iterations, only, pre)
             if C >= 0.0:
                 break
             hit[i] = b
@@ -348,7 +404,7 @@ def contact_pairs(X, order, pptr, M, Minv, has, lo, hi, reach, min_angle, box, c
         for d in range(3):
             box[a, 0, d], box[a, 1, d] = np.inf, -np.inf
         for q in range(pptr[a], pptr[a + 1]):
-            x, y, z = _to_rest(Minv, a, X[order[q]])
+            x, y, z = _to_rest(Minv, a, X[order[q], 0], X[order[q], 1], X[order[q], 2])
             box[a, 0, 0], box[a, 1, 0] = min(box[a, 0, 0], x), max(box[a, 1, 0], x)
             box[a, 0, 1], box[a, 1, 1] = min(box[a, 0, 1], y), max(box[a, 1, 1], y)
             box[a, 0, 2], box[a, 1, 2] = min(box[a, 0, 2], z), max(box[a, 1, 2], z)
@@ -377,7 +433,7 @@ def contact_pairs(X, order, pptr, M, Minv, has, lo, hi, reach, min_angle, box, c
                 corner[0] = phi[a, 0] if c & 1 else plo[a, 0]
                 corner[1] = phi[a, 1] if c & 2 else plo[a, 1]
                 corner[2] = phi[a, 2] if c & 4 else plo[a, 2]
-                x, y, z = _to_rest(Minv, b, corner)
+                x, y, z = _to_rest(Minv, b, corner[0], corner[1], corner[2])
                 clo[0], chi[0] = min(clo[0], x), max(chi[0], x)
                 clo[1], chi[1] = min(clo[1], y), max(chi[1], y)
                 clo[2], chi[2] = min(clo[2], z), max(chi[2], z)

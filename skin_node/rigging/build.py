@@ -21,7 +21,7 @@ from .tetra import lattice_for_count, signed_volumes, tet_edges
 from .weights import (bone_distances, inverse_distance_weights, joint_radii, joint_regions,
                       point_segment_distance)
 
-RIG_VERSION = 9
+RIG_VERSION = 10
 
 
 @dataclass
@@ -146,8 +146,7 @@ class Rig:
     field_wdims: np.ndarray
     field_wptr: np.ndarray
     field_wvalues: np.ndarray
-    field_wother: np.ndarray
-    field_optr: np.ndarray
+    field_wreach: np.ndarray
 
     def weights(self, scheme: str = "character") -> Weights:
         """The :class:`Weights` of ``scheme`` (:data:`WEIGHT_SCHEMES`)."""
@@ -164,7 +163,7 @@ class Rig:
         takes."""
         return (self.field_origin, self.field_cell, self.field_dims, self.field_ptr,
                 self.field_values, self.field_sptr, self.field_sets, self.field_wdims,
-                self.field_wptr, self.field_wvalues, self.field_wother, self.field_optr)
+                self.field_wptr, self.field_wvalues, self.field_wreach)
 
     def save(self, path: Path) -> None:
         tmp = Path(str(path) + f".{os.getpid()}.tmp.npz")
@@ -343,7 +342,7 @@ def build_rig(V: np.ndarray, F: np.ndarray, skel: Skeleton, opt: RigOptions,
                field_origin=pf.origin, field_cell=pf.cell, field_dims=pf.dims,
                field_ptr=pf.ptr, field_values=pf.values, field_sptr=pf.sptr,
                field_sets=pf.sets, field_wdims=pf.wdims, field_wptr=pf.wptr,
-               field_wvalues=pf.wvalues, field_wother=pf.wother, field_optr=pf.optr)
+               field_wvalues=pf.wvalues, field_wreach=pf.wreach)
 
 
 def cached_rig(V: np.ndarray, F: np.ndarray, skel: Skeleton, opt: RigOptions,

@@ -34,10 +34,10 @@ class PartFields(NamedTuple):
     bone set ``sets[sptr[j]:sptr[j + 1]]`` (the bone, its parent, children and
     siblings) on a grid of twice the spacing (``wdims``, ``wptr``; channels
     contiguous per node, summing to 1), with which a posed point is carried
-    back to the rest point that skinning would have put there; and ``wother``
-    (one per weight node, part ``j``'s from ``optr[j]``), the most weight
-    other bones take within :data:`REACH` weight nodes: where it is 0 the
-    flesh moves with its bone alone.
+    back to the rest point that skinning would have put there; and
+    ``wreach`` (the same layout), each bone's most weight within
+    :data:`REACH` weight nodes: how far skinning can carry the flesh there
+    from where its own bone would.
     """
 
     origin: np.ndarray
@@ -50,11 +50,10 @@ class PartFields(NamedTuple):
     wdims: np.ndarray
     wptr: np.ndarray
     wvalues: np.ndarray
-    wother: np.ndarray
-    optr: np.ndarray
+    wreach: np.ndarray
 
 
-#: How far (in weight-grid nodes) ``PartFields.wother`` looks around a node.
+#: How far (in weight-grid nodes) ``PartFields.wreach`` looks around a node.
 REACH = 3
 
 
@@ -208,9 +207,9 @@ def part_fields(V: np.ndarray, F: np.ndarray, W: np.ndarray, sample_weights, cel
         Ws = np.where(tot > 1e-6, Ws / np.maximum(tot, 1e-12), np.eye(len(sets[j]))[0])
         wdims[j] = wd
         wchunks.append(Ws.astype(np.float32).ravel())
-        other = ndimage.maximum_filter((1.0 - Ws[:, 0]).reshape(tuple(wd)), size=2 * REACH + 1,
+        reach = ndimage.maximum_filter(Ws.reshape(*wd, -1), size=(*(3 * [2 * REACH + 1]), 1),
                                        mode="nearest")
-        ochunks.append(other.astype(np.float32).ravel())
+        ochunks.append(reach.astype(np.float32).ravel())
     ptr = np.zeros(n_parts + 1, dtype=np.int64)
     ptr[1:] = np.cumsum([len(c) for c in chunks])
     wptr = np.zeros(n_parts + 1, dtype=np.int64)
@@ -221,6 +220,4 @@ def part_fields(V: np.ndarray, F: np.ndarray, W: np.ndarray, sample_weights, cel
                       values=np.concatenate(chunks), sptr=sptr,
                       sets=np.array([b for c in sets for b in c], dtype=np.int64),
                       wdims=wdims, wptr=wptr, wvalues=np.concatenate(wchunks),
-                      wother=np.concatenate(ochunks),
-                      optr=np.concatenate([[0], np.cumsum([len(c) for c in ochunks])]).astype(
-                          np.int64))
+                      wreach=np.concatenate(ochunks))

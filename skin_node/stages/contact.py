@@ -69,6 +69,7 @@ class Contact(Stage):
         self._moved = np.zeros(n, dtype=np.bool_)
         self._plane = np.zeros((n, 6))
         self._hit = np.full(n, -1, dtype=np.int64)
+        self._pre = np.zeros((n, 6))
         self._J = J
 
     def pairs(self, fr: Frame):
@@ -107,7 +108,7 @@ class Contact(Stage):
         passes = int(self.params["contact_smoothing"])
         plane, hit = self._plane, self._hit
         hit[verts] = -1
-        project_contacts(X, *args, moved, plane, hit, False)
+        project_contacts(X, *args, moved, plane, hit, False, self._pre)
         if not moved.any():
             fr.counts["contact_vertices"] = 0
             return
@@ -128,7 +129,8 @@ class Contact(Stage):
             # smoothing pushed into contact)
             laplacian_smooth(X, X0, True, ring, loc, lptr, lnbr, lw, 0.5, passes, L, buf)
             if (r + 1) % exact == 0 or r == rounds - 1:
-                project_contacts(X, self.V0, near, *args[2:], moved, plane, hit, True)
+                project_contacts(X, self.V0, near, *args[2:], moved, plane, hit, True,
+                                 self._pre)
             else:
                 hold_planes(X, zone, moved, plane)
         touched = np.flatnonzero(moved)
