@@ -11,6 +11,7 @@ Subcommands (``run`` is the default when the first argument is an option)::
     skin_bench export-memory --frames 1000   # the streaming exporter's peak RSS
     skin_bench ablation --scenes humanoid:24000 --clips walk,squat   # each part's worth
     skin_bench ros-latency --seconds 10
+    skin_bench pictures --out closeups.png      # z-buffer close-ups, LBS / DQS / paper / ours
     skin_bench report            # everything, into bench_results/, prints a markdown table
 
 Outputs: ``runs.csv`` / ``runs.json`` (one summary row per method, scene and
@@ -224,6 +225,52 @@ def markdown_table(runs: list, clips: dict | None = None) -> str:
     return "\n".join(lines)
 
 
+def against_dqs(runs: list, method: str = "default") -> list:
+    """``method`` against plain DQS on every scene and clip both ran, in the
+    same run: one dict of ratios (and DQS's own figures) each."""
+    dqs = {(r["scene"], r["motion"]): r for r in runs if r["method"] == "dqs"}
+    out = []
+    for r in runs:
+        d = dqs.get((r["scene"], r["motion"]))
+        if r["method"] != method or d is None or r["motion"] in ("elbow_sweep", "twist_sweep"):
+            continue
+        ratio = lambda a, b: a / b if b else (0.0 if a == 0 else float("inf"))  # noqa: E731
+        out.append({
+            "scene": r["scene"], "motion": r["motion"],
+            "dqs_ms_p50": d["ms_total_p50"],
+            "time_p50": r["ms_total_p50"] / d["ms_total_p50"],
+            "time_p90": r["ms_total_p90"] / d["ms_total_p50"],
+            "pairs": (r.get("pairs_max"), d.get("pairs_max")),
+            "pairs_ratio": ratio(r.get("pairs_max", np.nan), d.get("pairs_max", np.nan)),
+            "folds90": (r.get("folds90_max"), d.get("folds90_max")),
+            "roughness_ratio": r.get("surface_roughness_max", np.nan)
+            / d.get("surface_roughness_max", np.nan),
+            "bulge_ratio": r["bulge_mm"] / d["bulge_mm"] if d["bulge_mm"] > 0 else np.nan,
+            "region": r["region_volume_ratio_deepest"],
+            "region_error_max": r["region_volume_error_max"],
+            "volume_min": r["volume_ratio_min"]})
+    return out
+
+
+def dqs_table(runs: list, method: str = "default") -> str:
+    """:func:`against_dqs` as markdown: ratios first, DQS's own time beside them."""
+    f = _num
+    lines = [f"| {method} against DQS: scene | clip | time p50 / p90 (x DQS p50; DQS ms) | "
+             "intersecting pairs (worst frame; x DQS) | folds90 (worst frame): ours / DQS | "
+             "roughness (x DQS) | bulge (x DQS) | joint region at deepest bend / worst error "
+             "| volume (min) |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for a in against_dqs(runs, method):
+        lines.append(
+            f"| {a['scene']} | {a['motion']} | {f(a['time_p50'], 1)} / {f(a['time_p90'], 1)} "
+            f"({f(a['dqs_ms_p50'], 2)}) | {f(a['pairs'][0], 0)} / {f(a['pairs'][1], 0)} "
+            f"({f(a['pairs_ratio'], 2)}) | {f(a['folds90'][0], 0)} / {f(a['folds90'][1], 0)} | "
+            f"{f(a['roughness_ratio'], 3)} | {f(a['bulge_ratio'], 2)} | "
+            f"{f(a['region'], 3)} / {f(100 * a['region_error_max'], 1)}% | "
+            f"{f(a['volume_min'], 3)} |")
+    return "\n".join(lines)
+
+
 def stage_table(runs: list, method: str = "default") -> str:
     """Median ms per stage of ``method`` on every scene and clip it ran."""
     rows = [r for r in runs if r["method"] == method
@@ -360,7 +407,8 @@ def report(out: Path, quick: bool = False, ros: bool = True, progress: bool = Tr
     out.mkdir(parents=True, exist_ok=True)
     pipes = _pipelines([DEFAULT_PIPELINES])
     scenes = ["arm:2000"] if quick else ["arm:2000", "arm:6000", "humanoid:24000"]
-    stride = 24 if quick else 8
+    # every 4th frame: the clips' deepest frames and their neighbours all count
+    stride = 24 if quick else 4
     main = run_bench(pipes, scenes, stride=stride, ref_frames=3 if quick else 5,
                      out=out, progress=progress, charts_=False, frames_csv=False)
     sweep_scene = "arm:2000" if quick else "arm:6000"
@@ -406,12 +454,17 @@ def report(out: Path, quick: bool = False, ros: bool = True, progress: bool = Tr
             write_json(lats, out / "ros_latency.json")
         except Exception as e:  # noqa: BLE001 - ROS may be missing; the rest still stands
             print(f"skin_bench: ros-latency skipped: {type(e).__name__}: {e}", file=sys.stderr)
+    from .pictures import closeups
+    closeups(out / "closeups.png", quick=quick)
+    write_json(against_dqs(main["runs"]), out / "against_dqs.json")
     md = ["## Benchmark summary", "",
           f"Measured by `skin_bench report` in {time.perf_counter() - t0:.0f} s on "
           f"{main['environment'].get('cpu', platform.machine())} "
           f"({main['environment']['cpus']} cpus, load average "
           f"{main['environment'].get('load_average')}). ms = deform time per frame after a "
-          "JIT warm-up; set-up and warm-up times are in runs.csv.", "",
+          "JIT warm-up, one thread; set-up and warm-up times are in runs.csv. Every "
+          f"{stride}th frame of each clip.", "",
+          dqs_table(main["runs"]), "",
           markdown_table(main["runs"], TABLE_CLIPS), "",
           "Median milliseconds per stage (fk = forward kinematics):", "",
           stage_table(main["runs"]), "",
@@ -422,6 +475,7 @@ def report(out: Path, quick: bool = False, ros: bool = True, progress: bool = Tr
           memory_line(mem)]
     for lat in lats:
         md += ["", latency_line(lat)]
+    md += ["", "![z-buffer close-ups](closeups.png)"]
     text = "\n".join(md) + "\n"
     (out / "summary.md").write_text(text)
     return text
@@ -507,6 +561,13 @@ def _parser() -> argparse.ArgumentParser:
 
     sub.add_parser("ros-latency", help="input-to-output latency of the node", add_help=False)
 
+    c = sub.add_parser("pictures", help="z-buffer close-ups of methods side by side")
+    c.add_argument("--out", type=Path, default=Path("bench_results/closeups.png"))
+    c.add_argument("--pipelines", nargs="+", default=["lbs,dqs,paper,default"],
+                   help="columns: preset names and/or JSON dicts, as for run")
+    c.add_argument("--quick", action="store_true", help="small meshes")
+    c.add_argument("--no-progress", action="store_true")
+
     p = sub.add_parser("report", help="regenerate bench_results/ and print a markdown table")
     p.add_argument("--out", type=Path, default=Path("bench_results"))
     p.add_argument("--quick", action="store_true", help="small sizes (a smoke run)")
@@ -534,6 +595,8 @@ def main(argv: list | None = None) -> int:
             print(markdown_table(res["runs"]))
             if any(r["method"] == "default" for r in res["runs"]):
                 print("\n" + stage_table(res["runs"]))
+                if any(r["method"] == "dqs" for r in res["runs"]):
+                    print("\n" + dqs_table(res["runs"]))
             print(f"\nwritten to {a.out}/")
         elif a.cmd == "ablation":
             res = run_ablation(_list(a.scenes), _list(a.clips), a.stride, a.out, prog)
@@ -563,6 +626,9 @@ def main(argv: list | None = None) -> int:
             print(export_memory_line(res))
             for line in res["lines"]:
                 print("  " + line)
+        elif a.cmd == "pictures":
+            from .pictures import closeups
+            print(closeups(a.out, methods=_pipelines(a.pipelines), quick=a.quick))
         elif a.cmd == "report":
             print(report(a.out, quick=a.quick, ros=not a.no_ros, progress=prog))
     except ValueError as e:

@@ -88,7 +88,7 @@ def closeups(out: Path, methods=METHODS, quick: bool = False, size: int = 300) -
                 ax.set_ylabel(title, fontsize=8)
     fig.suptitle("z-buffer close-ups: red = faces of intersecting triangle pairs, "
                  "blue = faces seen from behind", fontsize=9)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.3 / (size / 80 * len(rows) + 0.3)))
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out)
