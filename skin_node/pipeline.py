@@ -14,19 +14,21 @@ from .stages.base import Frame, Stage
 from .rigging.build import WEIGHT_SCHEMES
 from .stages.collision import Collision
 from .stages.contact import Contact
+from .stages.mush import Mush
 from .stages.pbd import CONSTRAINTS, PBD
 from .stages.shape import Bulge, Inflate
 from .stages.skinning import DQS, LBS
 from .stages.smooth import Smooth
 from .stages.volume import Volume
 
-STAGES = {s.name: s for s in (LBS, DQS, PBD, Bulge, Inflate, Contact, Collision, Smooth,
-                               Volume)}
+STAGES = {s.name: s for s in (LBS, DQS, PBD, Bulge, Inflate, Contact, Mush, Collision,
+                               Smooth, Volume)}
 STAGE_NAMES = tuple(STAGES)
 
-#: Our default: DQS start (no candy wrapper) with smooth weights, then skin
-#: kept out of other parts' flesh.
-DEFAULT_STAGES = ("dqs", "bulge", "contact", "inflate")
+#: Our default: DQS start (no candy wrapper) with smooth weights, the bulge
+#: drawn in, skin kept out of other parts' flesh, the volume given back, and
+#: the crease the contact leaves rounded with the rest skin's detail kept.
+DEFAULT_STAGES = ("dqs", "bulge", "contact", "inflate", "mush")
 
 #: Named stage lists with the parameters that make them what they are.
 PRESETS = {
@@ -102,6 +104,10 @@ PIPELINE_PARAMS = {
     "contact_rings": ParamSpec(int, 3, 0, 20, "rings around skin in contact that follow it"),
     "contact_smoothing": ParamSpec(int, 4, 0, 50, "Laplacian passes over the contact's "
                                    "displacement per round"),
+    "mush_rings": ParamSpec(int, 3, 0, 20, "rings around the skin the contact moved that "
+                            "the mush smooths"),
+    "mush_passes": ParamSpec(int, 8, 0, 100, "Laplacian passes of the mush over the posed "
+                             "skin (its rest detail comes back; 0 leaves it alone)"),
     "bulge_limit": ParamSpec(float, 0.1, 0.001, 2.0, "the most skin stands out from its bone "
                              "beyond its rest distance, in rest distances"),
     "bulge_smoothing": ParamSpec(int, 4, 0, 100, "Laplacian passes over the bulge limit's "

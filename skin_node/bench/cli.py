@@ -291,12 +291,13 @@ def stage_table(runs: list, method: str = "default") -> str:
 #: The default pipeline with one part taken out, cut down or added: (name, the
 #: pipeline's JSON spec over the default preset, what).
 ABLATIONS = (
-    ("no-contact", {"stages": ["dqs", "bulge", "inflate"]}, "no contact stage"),
+    ("no-contact", {"stages": ["dqs", "bulge", "inflate", "mush"]}, "no contact stage"),
     ("contact-unsmoothed", {"params": {"contact_rounds": 0}},
      "contact projected once, not smoothed"),
-    ("no-bulge", {"stages": ["dqs", "contact", "inflate"]}, "no bulge limit"),
-    ("no-inflate", {"stages": ["dqs", "bulge", "contact"]}, "no inflation"),
-    ("with-solve", {"stages": ["dqs", "pbd", "bulge", "contact", "inflate"]},
+    ("no-mush", {"stages": ["dqs", "bulge", "contact", "inflate"]}, "no mush of the crease"),
+    ("no-bulge", {"stages": ["dqs", "contact", "inflate", "mush"]}, "no bulge limit"),
+    ("no-inflate", {"stages": ["dqs", "bulge", "contact", "mush"]}, "no inflation"),
+    ("with-solve", {"stages": ["dqs", "pbd", "bulge", "contact", "inflate", "mush"]},
      "with the extended PBD solve over the tet mesh after stage 1"),
     ("paper-weights", {"params": {"weight_scheme": "inverse_distance"}},
      "the paper's inverse-distance weights"),

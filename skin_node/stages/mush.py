@@ -1,0 +1,89 @@
+"""Mush: the skin around a contact, smoothed with its rest detail kept."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..kernels.smoothing import restore_detail, vertex_faces
+from ..kernels.solver import edge_weights, laplacian_smooth, ring_layout
+from ..kernels.topology import ring_distance
+from .base import Frame, Stage
+from ..rigging.weights import point_segment_distance
+
+#: Edges across a limb's radius (skin to bone at rest) below which the mush
+#: fades out, from none to full: smoothing over a few rings of a coarse limb
+#: reaches across the whole joint, cuts the bend's corner and loses the
+#: joint's volume (CesiumMan's 40 mm edges around 40 mm limbs: a fifth of the
+#: shoulder's region), where a few rings of a fine one round the crease alone.
+RESOLUTION = (2.0, 3.5)
+
+
+class Mush(Stage):
+    """Delta Mush (Mancewicz et al. 2014) over the skin the contact moved.
+
+    Contact projects skin onto the surface where two parts meet; where the two
+    sides leave it, at the bottom of a crease, they meet at an edge, and where
+    three parts meet (the groin) the projections of one side can leave it
+    zig-zagged. Smoothing the posed positions (not the displacement, which
+    keeps what skinning made) rounds the crease and irons the zig-zag out; the
+    rest skin's own detail, which that smoothing would melt, comes back in each
+    vertex's frame (:mod:`skin_node.kernels.smoothing`). Skin that moved
+    rigidly comes out unchanged, so only what the contact bent is touched:
+    the vertices it moved and ``mush_rings`` rings around them, ``mush_passes``
+    weighted Laplacian passes, the zone's border held. Skin too coarse for
+    that to stay local (:data:`RESOLUTION`) is left alone.
+    """
+
+    name = "mush"
+
+    def __init__(self, character, params):
+        super().__init__(character, params)
+        r = character.rig
+        self.V0 = np.ascontiguousarray(character.V)
+        self.F = np.ascontiguousarray(character.F, dtype=np.int64)
+        n = len(self.V0)
+        self._ptr, self._adj = r.adj_ptr, r.adj
+        self._vf_ptr, self._vf = vertex_faces(self.F, n)
+        # a neighbour of every vertex, the tangent's direction (a closed
+        # surface has one for each; an isolated vertex points at itself)
+        has = np.diff(self._ptr) > 0
+        self._first = np.where(has, self._adj[np.minimum(self._ptr[:-1], len(self._adj) - 1)],
+                               np.arange(n)).astype(np.int64)
+        self._SX, self._SV = np.empty((n, 3)), np.empty((n, 3))
+        sj, A, B = character.skeleton.bone_segments()
+        radius = point_segment_distance(self.V0, A, B).min(axis=1) if len(A) else np.zeros(n)
+        e = np.linalg.norm(self.V0[self.F] - self.V0[np.roll(self.F, 1, axis=1)], axis=2)
+        esum, ecount = np.zeros(n), np.zeros(n)
+        for k in range(3):
+            np.add.at(esum, self.F[:, k], e[:, k])
+            np.add.at(ecount, self.F[:, k], 1)
+        x = np.clip((radius * ecount / np.maximum(esum, 1e-12) - RESOLUTION[0])
+                    / (RESOLUTION[1] - RESOLUTION[0]), 0.0, 1.0)
+        #: how much of the mush each vertex takes (0 where its limb is too coarse)
+        self.resolved = x * x * (3.0 - 2.0 * x)
+        self._fade = np.zeros(n)
+        self._hops = np.full(n, 1 << 30, dtype=np.int64)
+        self._queue = np.empty(n, dtype=np.int64)
+
+    def __call__(self, fr: Frame) -> None:
+        passes = int(self.params["mush_passes"])
+        if not fr.touched or passes == 0:
+            fr.counts["mush_vertices"] = 0
+            return
+        src = np.unique(np.concatenate(fr.touched)).astype(np.int64)
+        rings = int(self.params["mush_rings"])
+        reached = ring_distance(src, self._ptr, self._adj, self._hops, rings + 1, self._queue)
+        zone = np.sort(self._queue[:reached])
+        self._hops[zone] = 1 << 30
+        ring, loc, lptr, lnbr = ring_layout(zone, self._ptr, self._adj)
+        lw = edge_weights(self.V0, ring, loc, lptr, lnbr)
+        X, SX, SV = fr.surface, self._SX, self._SV
+        SX[ring] = X[ring]
+        SV[ring] = self.V0[ring]
+        L, buf = np.empty((len(ring), 3)), np.empty((len(zone), 3))
+        laplacian_smooth(SX, SX, False, ring, loc, lptr, lnbr, lw, 0.5, passes, L, buf)
+        laplacian_smooth(SV, SV, False, ring, loc, lptr, lnbr, lw, 0.5, passes, L, buf)
+        self._fade[zone] = self.resolved[zone]
+        restore_detail(X, self.V0, SX, SV, zone, self.F, self._vf_ptr, self._vf, self._first,
+                       self._fade)
+        self._fade[zone] = 0.0
+        fr.counts["mush_vertices"] = len(zone)
