@@ -123,6 +123,8 @@ PIPELINE_PARAMS = {
     "inflate_slack": ParamSpec(float, 0.02, 0.0, 1.0, "the whole mesh may keep this share of "
                                "its volume lost (what the joint regions do not take back); "
                                "1 leaves it alone"),
+    "inflate_smoothing": ParamSpec(int, 8, 0, 100, "Laplacian passes over the whole mesh's "
+                                   "inflation"),
     "inflate_max": ParamSpec(float, 0.25, 0.0, 2.0, "the most inflation moves skin, in limb "
                              "radii of the joint"),
     "iterations": ParamSpec(int, 1, 0, 200, "Gauss-Seidel iterations of the PBD solve per frame "

@@ -118,8 +118,8 @@ def test_default_beats_dqs_on_a_small_arm_at_150(small_arm):
     """The arm at 150 degrees against DQS on the same weights: no more than a
     tenth of its intersecting triangle pairs, no more sharp folds, roughness
     within 5%, the elbow's region within 3%, the whole arm's volume within 3%,
-    the bulge at most two thirds of DQS's (the goal is half); and the contact
-    stage is what parts the skin."""
+    the bulge at most half of DQS's; and the contact stage is what parts the
+    skin."""
     ch = small_arm
     q = ch.pose(elbow_rz=np.radians(150))
     si, sq, sm = SelfIntersections(ch.V, ch.F, 0.0), SurfaceQuality(ch.V, ch.F), SceneMetrics(ch)
@@ -137,8 +137,27 @@ def test_default_beats_dqs_on_a_small_arm_at_150(small_arm):
     assert o["folds90"] <= d["folds90"], out
     assert o["roughness"] <= 1.05 * d["roughness"], out
     assert abs(o["region"] - 1.0) <= 0.03 and o["volume"] >= 0.97, out
-    assert o["bulge"] <= 0.67 * d["bulge"], out
+    assert o["bulge"] <= 0.5 * d["bulge"], out
     assert out["no contact"]["pairs"] > 50, out
+
+
+def test_inflation_gives_volume_back_inside_the_bulge_envelope(small_arm):
+    """At 150 degrees the bulge limit draws the elbow's outer skin in and the
+    region loses a tenth of its volume; inflation gives it back from skin
+    with room under the envelope: the region within 1% of rest, the bulge
+    no more than a millimetre past what the bulge limit left."""
+    ch = small_arm
+    q = ch.pose(elbow_rz=np.radians(150))
+    sm, elbow = SceneMetrics(ch), ch.skeleton.index("elbow")
+    res = {}
+    for name, stages in (("bulge", ["dqs", "bulge"]), ("inflated", ["dqs", "bulge", "contact", "inflate"])):
+        pipe = Pipeline(ch, stages)
+        X = pipe.deform(q)
+        fr = pipe.last_frame
+        res[name] = (float(sm.deviation_mm(X, fr.seg_A, fr.seg_B).max()), sm.region_ratio(X, fr.G, elbow))
+    assert res["bulge"][1] < 0.93, res
+    assert abs(res["inflated"][1] - 1.0) <= 0.01, res
+    assert res["inflated"][0] <= res["bulge"][0] + 1.0, res
 
 
 def capsule(path, r=0.045, length=0.5, h=0.008):

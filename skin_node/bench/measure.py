@@ -80,6 +80,7 @@ from ..kernels.intersect import SelfIntersections
 from ..metrics import SurfaceQuality, mesh_volume, region_volume, weight_jumps
 from ..pipeline import PRESETS, STAGE_NAMES, Pipeline
 from ..stages.collision import JointRegions, count_crossings
+from ..rigging.weights import segment_distance
 
 #: Skinning-only stages: iterations, tets and active_threshold do not change their result.
 SKIN_ONLY = {"lbs", "dqs"}
@@ -294,14 +295,6 @@ def jitter(pipe: Pipeline, stage1: Pipeline, frames: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------- metrics
-def segment_distance(P: np.ndarray, A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """Row-wise distance of points ``P`` (n,3) to segments ``A``-``B`` (n,3)."""
-    d = B - A
-    t = np.einsum("ij,ij->i", P - A, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-30)
-    t = np.clip(t, 0.0, 1.0)
-    return np.linalg.norm(P - (A + t[:, None] * d), axis=1)
-
-
 def tet_volumes(X: np.ndarray, T: np.ndarray) -> np.ndarray:
     """Signed volumes of tets ``T`` over vertices ``X``, in the convention of
     ``rig.vol0``: ``(1/6) [(p1 - p2) x (p1 - p3)] . (p1 - p4)``."""

@@ -16,6 +16,14 @@ def point_segment_distance(P: np.ndarray, A: np.ndarray, B: np.ndarray) -> np.nd
     return np.sqrt(np.einsum("nsk,nsk->ns", D, D))
 
 
+def segment_distance(P: np.ndarray, A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Row-wise distance of points ``P`` (n,3) to segments ``A``-``B`` (n,3)."""
+    d = B - A
+    t = np.einsum("ij,ij->i", P - A, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-30)
+    t = np.clip(t, 0.0, 1.0)
+    return np.linalg.norm(P - (A + t[:, None] * d), axis=1)
+
+
 def bone_distances(P: np.ndarray, skel: Skeleton):
     """(n, J) distance of every point to every joint's bone, and the nearest segment.
 

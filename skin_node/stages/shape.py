@@ -8,7 +8,7 @@ from ..kernels.shape import (cone_volume_gradient, enclosed_volume, limit_bulge,
                              region_incidence)
 from ..kernels.solver import edge_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
-from ..rigging.weights import point_segment_distance
+from ..rigging.weights import point_segment_distance, segment_distance
 from .base import Frame, KeyedCache, Stage
 
 
@@ -23,7 +23,9 @@ class Bulge(Stage):
     than at rest is drawn back to at most ``bulge_limit`` times its rest
     distance out, skin nearer than at rest is left as it is. Only skin whose
     weights a bent joint splits is drawn in (where skinning blends, and so
-    bulges), fading in where the smaller side's weight rises from 0 to 10%.
+    bulges), fading in where the smaller side's weight rises from 0.25% to 1.3%
+    (fading in over the first tenth leaves the 150-degree elbow's outer skin
+    2 mm further out).
     """
 
     name = "bulge"
@@ -52,10 +54,10 @@ class Bulge(Stage):
             s_ = (w.Wval * below[j][w.Widx]).sum(1)
             split[:, j] = 4.0 * s_ * (1.0 - s_)
         # per joint: the skin it splits, and how much of the pull it gets
-        # (full from a tenth of the weight on the other side: split 0.36)
+        # (full from 1.3% of the weight on the other side: split 0.05)
         self.jverts = [np.flatnonzero(split[:, j] > 0.01).astype(np.int64)
                        for j in range(skel.n_joints)]
-        self.jsplit = [np.minimum(1.0, split[v, j] / 0.36) for j, v in enumerate(self.jverts)]
+        self.jsplit = [np.minimum(1.0, split[v, j] / 0.05) for j, v in enumerate(self.jverts)]
         self._fade = np.zeros(len(V))
         self._V, self._ptr, self._adj = V, r.adj_ptr, r.adj
         self._sets = KeyedCache()
@@ -164,11 +166,18 @@ class Inflate(Stage):
             self.jverts.append(v)
             self.jsplit.append(np.minimum(1.0, sp[v] / 0.36))
         self.mesh_vol0 = float(enclosed_volume(V, F))
+        # each vertex's nearest bone segment and its distance at rest: skin
+        # is not swollen past the bulge limit's envelope around it
+        _, A, B = skel.bone_segments()
+        D = point_segment_distance(V, A, B)
+        self.seg = np.argmin(D, axis=1)
+        self.r0 = D[np.arange(len(V)), self.seg]
         self._zones = KeyedCache()
         n = len(V)
         self._hops = np.full(n, 1 << 30, dtype=np.int64)
         self._queue = np.empty(n, dtype=np.int64)
         self._ptr, self._adj = r.adj_ptr, r.adj
+        self.V0 = V
 
     def __call__(self, fr: Frame) -> None:
         js = [j for j in np.flatnonzero(fr.bent) if len(self.verts[j])]
@@ -192,23 +201,53 @@ class Inflate(Stage):
             v, t = self.verts[j], self.tris[j]
             g = np.empty((len(v), 3))
             c = fr.G[j, :3, 3]
-            for _ in range(4):
+            # four steps within the bulge limit's envelope, then (if the region
+            # is still short: skin in contact all round, a coarse mesh) four
+            # past it: a joint keeps its volume before it keeps its outline
+            for it in range(8):
                 vol = cone_volume_gradient(X, self.F, t, c, *self.inc[j], v, g)
                 deficit = self.vol0[j] - vol
+                if abs(deficit) <= 1e-3 * abs(self.vol0[j]):
+                    break
                 # skin in contact may sink into its own flesh, not swell into
                 # the other's: it takes part in giving volume back, not in taking it
-                m = self.mob[j] * fr.fade[j] * (free[v] if deficit > 0.0 else 1.0)
+                m = self.mob[j] * fr.fade[j]
+                room = None
+                if deficit > 0.0:
+                    m = m * free[v]
+                    if it < 4:
+                        room = self._room(X, v, fr)
+                        m = m * self._give(room, v)
+                elif it >= 4:
+                    break
                 a = np.linalg.norm(g, axis=1)
                 den = float((m * a).sum())
-                if den <= 0.0 or abs(deficit) <= 1e-3 * abs(self.vol0[j]):
-                    break
+                if den <= 0.0:
+                    continue
                 # contact pushes skin out as well as in: both ways, back to rest
                 lim = cap * self.radius[j]
                 step = np.clip((deficit / den) * m, -lim, lim)
+                if room is not None:
+                    step = np.minimum(step, room)
                 X[v] += step[:, None] * (g / np.maximum(a, 1e-30)[:, None])
             vol = cone_volume_gradient(X, self.F, t, c, *self.inc[j], v, g)
             worst = min(worst, vol / self.vol0[j])
         fr.counts["region_volume_min"] = worst
+
+    def _room(self, X: np.ndarray, v: np.ndarray, fr: Frame) -> np.ndarray:
+        """How far out each of ``v`` may still move: to ``bulge_limit`` of its
+        rest distance beyond it, from its nearest bone segment (0 past it)."""
+        s = self.seg[v]
+        r = segment_distance(X[v], fr.seg_A[s], fr.seg_B[s])
+        return np.maximum((1.0 + float(self.params["bulge_limit"])) * self.r0[v] - r, 0.0)
+
+    def _give(self, room: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """How much of an outward layer each of ``v`` takes: all of it with half
+        the bulge limit's room left or more, fading to none at the envelope (a
+        cap alone would leave a step where capped skin meets free skin)."""
+        x = np.clip(room / np.maximum(0.5 * float(self.params["bulge_limit"]) * self.r0[v],
+                                      1e-12), 0.0, 1.0)
+        return x * x * (3.0 - 2.0 * x)
 
     def _zone(self, bent: np.ndarray):
         """The skin the bent joints split, its triangles and their CSR."""
@@ -217,7 +256,8 @@ class Inflate(Stage):
             v = (np.unique(np.concatenate([self.jverts[j] for j in js])) if js
                  else np.zeros(0, np.int64))
             t = np.flatnonzero(np.isin(self.F, v).any(axis=1)).astype(np.int64)
-            return v, t, region_incidence(self.F, t, v)
+            lay = ring_layout(v, self._ptr, self._adj)
+            return v, t, region_incidence(self.F, t, v), lay, edge_weights(self.V0, *lay)
         return self._zones.get(bent.tobytes(), make)
 
     def _whole(self, fr: Frame, free: np.ndarray) -> None:
@@ -232,19 +272,56 @@ class Inflate(Stage):
                                                           else 0.0)
         if deficit == 0.0:
             return
-        v, t, inc = self._zone(fr.bent)
+        v, t, inc, (ring, loc, lptr, lnbr), lw = self._zone(fr.bent)
         if not len(v):
             return
+        X0 = X[ring].copy()
         m = np.zeros(len(X))
         for j in np.flatnonzero(fr.bent):
             u = self.jverts[j]
             m[u] = np.maximum(m[u], self.jsplit[j] * fr.fade[j])
         m = m[v] * free[v]
         g = np.empty((len(v), 3))
-        cone_volume_gradient(X, self.F, t, np.zeros(3), *inc, v, g)
-        a = np.linalg.norm(g, axis=1)
-        den = float((m * a).sum())
-        if den > 0.0:
-            lim = float(self.params["inflate_max"]) * self.radius.max()
-            step = np.clip((deficit / den) * m, -lim, lim)
+        lim = float(self.params["inflate_max"]) * self.radius.max()
+        target = self.mesh_vol0 - (slack if deficit > 0.0 else -slack)
+        # within the bulge limit's envelope first, the layer smoothed (it
+        # thins where the envelope or contact holds skin: gradually, not in a
+        # step), then what smoothing and the envelope left out, past it
+        deficit = self._layer(fr, v, t, inc, m, target, deficit, lim, 3, True)
+        passes = int(self.params["inflate_smoothing"])
+        if passes:
+            base = X.copy()
+            base[ring] = X0
+            laplacian_smooth(X, base, True, ring, loc, lptr, lnbr, lw, 0.5, passes,
+                             np.empty((len(ring), 3)), np.empty((len(loc), 3)))
+            deficit = target - enclosed_volume(X, self.F)
+            if (deficit > 0.0) != (target < self.mesh_vol0):
+                return
+        self._layer(fr, v, t, inc, m, target, deficit, lim, 2, False)
+
+    def _layer(self, fr, v, t, inc, m, target, deficit, lim, steps, within):
+        """Up to ``steps`` even layers over ``v`` (mobility ``m``) towards the
+        mesh volume ``target``, within the bulge limit's envelope when
+        ``within`` and the mesh is short; returns the deficit left."""
+        X = fr.surface
+        g = np.empty((len(v), 3))
+        for _ in range(steps):
+            if abs(deficit) <= 1e-3 * self.mesh_vol0:
+                break
+            cone_volume_gradient(X, self.F, t, np.zeros(3), *inc, v, g)
+            a = np.linalg.norm(g, axis=1)
+            env = within and deficit > 0.0
+            room = self._room(X, v, fr) if env else None
+            mm = m * self._give(room, v) if env else m
+            den = float((mm * a).sum())
+            if den <= 0.0:
+                break
+            step = np.clip((deficit / den) * mm, -lim, lim)
+            if env:
+                step = np.minimum(step, room)
             X[v] += step[:, None] * (g / np.maximum(a, 1e-30)[:, None])
+            deficit = target - enclosed_volume(X, self.F)
+            if (deficit > 0.0) != (target < self.mesh_vol0):
+                break
+        return deficit
+
