@@ -1,9 +1,10 @@
 """The node as a process: bags of joint states in, recorded outputs checked.
 
 Each test starts ``skin_node`` (the installed console script when it is on
-PATH, else ``python -m skin_node.node``) on its own ROS_DOMAIN_ID with DDS kept
-on localhost, replays a bag written here with ``rosbags`` (rosbag2, or ROS 1)
-through ``skin_bag``, and reads the bag ``skin_bag`` recorded.
+PATH, else ``python -m skin_node.node``) on a ROS_DOMAIN_ID it claims for itself
+(``skin_node.ros_domain``) with DDS kept on localhost, replays a bag written
+here with ``rosbags`` (rosbag2, or ROS 1) through ``skin_bag``, and reads the
+bag ``skin_bag`` recorded.
 """
 from __future__ import annotations
 
@@ -30,23 +31,29 @@ import skin_node
 from skin_node.player import character_skeleton
 from msg_adapters import Reason, diagnostic_values, point_cloud2_to_vertices
 from skin_node.io.bags import BagReader
+from skin_node.ros_domain import claim_domain, domain_range
 
 REPO = Path(__file__).resolve().parents[1]
 PR2_BAG = REPO.parent / "shared" / "data" / "bags" / "pr2_joint_states_mcap"
 NAME_MAP = REPO / "config" / "name_map_example.yaml"
 ARM_VERTICES = 2000
 READY_TIMEOUT = 300.0     # a cold rig cache builds the arm's tets and weights first
-_domains = iter(range(100))
 
 
-def _env() -> dict:
-    """Environment of one node + tools: a fresh domain, DDS on localhost."""
-    env = dict(os.environ)
-    env.update(ROS_DOMAIN_ID=str(10 + (os.getpid() + next(_domains)) % 90),
-               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1",
+def _base_env() -> dict:
+    """Environment of the tools: DDS on localhost, unbuffered output, this source tree."""
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1",
                RCUTILS_LOGGING_BUFFERED_STREAM="0")
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [env.get("PYTHONPATH"), str(REPO)]))
     return env
+
+
+@contextlib.contextmanager
+def ros_env():
+    """Environment of one node + tools, on a domain no other live process holds
+    for as long as the block runs."""
+    with claim_domain() as claim:
+        yield dict(_base_env(), ROS_DOMAIN_ID=str(claim.domain))
 
 
 def _command(script: str, module: str) -> list[str]:
@@ -57,27 +64,27 @@ def _command(script: str, module: str) -> list[str]:
 @contextlib.contextmanager
 def running_node(tmp_path: Path, *ros_args: str):
     """Start skin_node, wait for 'ready', yield (process, env, log path), then stop it."""
-    env = _env()
-    log = tmp_path / f"node-{env['ROS_DOMAIN_ID']}.log"
-    with open(log, "w") as out:
-        proc = subprocess.Popen(
-            _command("skin_node", "skin_node.node") + ["--ros-args", *ros_args],
-            stdout=out, stderr=subprocess.STDOUT, env=env, cwd=REPO)
-    try:
-        deadline = time.monotonic() + READY_TIMEOUT
-        while "]: ready in" not in log.read_text():
-            if proc.poll() is not None or time.monotonic() > deadline:
-                pytest.fail(f"skin_node did not come up:\n{log.read_text()}")
-            time.sleep(0.2)
-        yield proc, env, log
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+    with ros_env() as env:
+        log = tmp_path / f"node-{env['ROS_DOMAIN_ID']}.log"
+        with open(log, "w") as out:
+            proc = subprocess.Popen(
+                _command("skin_node", "skin_node.node") + ["--ros-args", *ros_args],
+                stdout=out, stderr=subprocess.STDOUT, env=env, cwd=REPO)
+        try:
+            deadline = time.monotonic() + READY_TIMEOUT
+            while "]: ready in" not in log.read_text():
+                if proc.poll() is not None or time.monotonic() > deadline:
+                    pytest.fail(f"skin_node did not come up:\n{log.read_text()}")
+                time.sleep(0.2)
+            yield proc, env, log
+        finally:
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+                try:
+                    proc.wait(5)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
 
 
 def arm_node(tmp_path: Path, *ros_args: str):
@@ -249,7 +256,7 @@ def test_a_gltf_characters_own_clip_through_the_node(tmp_path):
     glb = write_animated_glb(tmp_path / "leg.glb")
     res = subprocess.run(_command("mocap_player", "skin_node.player")
                          + ["--character", str(glb), "--list-clips"],
-                         env=_env(), cwd=REPO, capture_output=True, text=True, timeout=120)
+                         env=_base_env(), cwd=REPO, capture_output=True, text=True, timeout=120)
     assert res.returncode == 0 and res.stdout.split() == ["walk", "animation1"], res.stderr
     clip = load_motion(str(glb), "walk", fps=30.0)
     t0, dt = 1_700_000_000 * 10**9, 10**9 // 30
@@ -366,13 +373,12 @@ def test_ros_latency_benchmark_measures_the_node(tmp_path):
     """skin_bench ros-latency end to end on the arm: every pose it sends is
     received, answered or counted stale, and it reads stamps, memory and the
     node's parameters back."""
-    env = _env()
     out = tmp_path / "latency.json"
     cmd = _command("skin_bench", "skin_node.bench.cli") + [
         "ros-latency", "--character", "arm", "--surface-vertices", str(ARM_VERTICES),
-        "--seconds", "2", "--rate", "60", "--param", "workers:=2", "--out", str(out),
-        "--domain", env["ROS_DOMAIN_ID"]]
-    res = subprocess.run(cmd, env=env, cwd=REPO, capture_output=True, text=True, timeout=400)
+        "--seconds", "2", "--rate", "60", "--param", "workers:=2", "--out", str(out)]
+    res = subprocess.run(cmd, env=_base_env(), cwd=REPO, capture_output=True, text=True,
+                         timeout=400)
     assert res.returncode == 0, res.stdout + res.stderr
     lat = json.loads(out.read_text())
     assert lat["inputs"] in (120, 121) and lat["node_received"] == lat["inputs"]
@@ -381,6 +387,7 @@ def test_ros_latency_benchmark_measures_the_node(tmp_path):
     assert 0.0 < lat["latency_ms_p50"] <= lat["latency_ms_p99"] < 1000.0
     assert 50.0 < lat["node_rss_mb"] < 1500.0 and lat["params"] == ["workers:=2"]
     assert "(workers:=2)" in res.stdout
+    assert lat["domain_id"] in domain_range()     # claimed by the benchmark itself
 
 
 def _pr2_or_skip() -> Path:
@@ -523,9 +530,11 @@ def test_bad_start_up_is_one_line_and_non_zero(tmp_path, content, args):
     if content is not None:
         path.write_text(content)
     spec = "arm" if args else str(path)
-    res = subprocess.run(
-        _command("skin_node", "skin_node.node") + ["--ros-args", "-p", f"character:={spec}", *args],
-        env=_env(), cwd=REPO, capture_output=True, text=True, timeout=120)
+    with ros_env() as env:
+        res = subprocess.run(
+            _command("skin_node", "skin_node.node") + ["--ros-args", "-p", f"character:={spec}",
+                                                       *args],
+            env=env, cwd=REPO, capture_output=True, text=True, timeout=120)
     assert res.returncode != 0
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr

@@ -1,7 +1,8 @@
 """``skin_bench ros-latency``: input-to-output latency of the skin_node process.
 
 Starts the node (the ``skin_node`` console script if on PATH, else
-``python -m skin_node.node``) on its own ROS_DOMAIN_ID with
+``python -m skin_node.node``) on a ROS_DOMAIN_ID it claims for the run
+(``skin_node.ros_domain``: no other live process holds or uses it) with
 ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, waits until it has latched
 ``skin/mesh`` (it does so once set up), then publishes JointState at
 ``rate`` Hz from the walk clip for ``seconds`` seconds. Every JointState's
@@ -59,8 +60,12 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     from skin_node import load_character
     from skin_node.builtin.characters import BUILTIN_CHARACTERS
     from skin_node.node import QOS_JOINT_STATES, QOS_LATCHED, QOS_STREAM
+    from skin_node.ros_domain import claim_domain
 
-    domain = domain if domain is not None else 60 + os.getpid() % 40
+    if domain is None:
+        with claim_domain() as claim:           # held until the node is gone
+            return measure_latency(seconds, rate, character, surface_vertices, claim.domain,
+                                   ready_timeout, params, weights, bvh)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                PYTHONUNBUFFERED="1")
     os.environ.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
@@ -174,7 +179,8 @@ def main(argv: list | None = None) -> int:
                     help="of a built-in character")
     ap.add_argument("--weights", default="automatic", choices=("automatic", "file"))
     ap.add_argument("--bvh", default="", help="play this BVH, retargeted to the character")
-    ap.add_argument("--domain", type=int, default=None, help="ROS_DOMAIN_ID (default: from pid)")
+    ap.add_argument("--domain", type=int, default=None,
+                    help="ROS_DOMAIN_ID (default: a free one of $SKIN_NODE_DOMAINS, else 10-99)")
     ap.add_argument("--out", default="", help="write the result as JSON here")
     ap.add_argument("--param", action="append", default=[], metavar="NAME:=VALUE",
                     help="a node parameter, e.g. --param threads:=2 (repeatable)")
