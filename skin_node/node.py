@@ -204,6 +204,9 @@ class SkinNode(Node):
         self._diag_pub = self.create_publisher(DiagnosticArray, "skin/diagnostics", 10)
         self._mesh_pub.publish(mesh_to_msg(self.character.V, self.character.F))
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        # stop() joins the workers. Daemon only for a set-up cut short by a signal
+        # after this point: no pose ever reaches them then, they wait on the
+        # condition (no rclpy frame on their stack), and must not hold the exit.
         self._workers = [threading.Thread(target=self._work, args=(w,), name=f"skin_worker{w}",
                                           daemon=True) for w in range(workers)]
         for t in self._workers:
@@ -433,13 +436,17 @@ class SkinNode(Node):
                 f"{values['ms_receive_to_publish']:.2f} ms | {message}")
 
     def stop(self) -> None:
-        """Stop the workers (each finishes the frame it is on)."""
+        """Stop the workers and join them (each finishes the frame it is on).
+
+        A worker must not outlive the node (it would publish through destroyed
+        publishers) nor the interpreter (see :class:`SpinThread`); a frame is
+        short, so the join is not cut short.
+        """
         with self._cond:
             self._stopping = True
             self._cond.notify_all()
-        deadline = time.monotonic() + 1.5
         for t in self._workers:
-            t.join(timeout=max(0.0, deadline - time.monotonic()))
+            t.join()
 
 
 _SETTING_UP = threading.Event()
@@ -491,6 +498,65 @@ def spin_until_shutdown(node: Node, future: Future | None = None) -> None:
     except Exception:
         if node.context.ok():
             raise
+
+
+class SpinThread:
+    """An executor spinning in a thread of its own, stopped in order.
+
+    For a tool whose main thread has other work (pacing a playback, feeding a
+    benchmark). Such a thread must never outlive ``main``: at interpreter exit
+    Python ends a still-running thread with ``pthread_exit`` when it next takes
+    the GIL, and for one coming back from rclpy's wait the unwind crosses a
+    ``noexcept`` C++ frame of rclpy, so ``std::terminate`` aborts the process
+    ("terminate called without an active exception", SIGABRT) after all else
+    went right. ``Executor.shutdown`` neither joins the thread nor (Jazzy)
+    waits for a running callback. So :meth:`stop` ends the spin, joins the
+    thread, and only then shuts the executor down; as a context manager, every
+    way out of the block does that.
+
+    Parameters
+    ----------
+    executor : rclpy.executors.Executor
+        With its nodes added; this thread is the only one that spins it.
+    name : str
+        The thread's name.
+    """
+
+    def __init__(self, executor, name: str = "spin") -> None:
+        self.executor = executor
+        self._done = Future()
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._spin, name=name)
+
+    def _spin(self) -> None:
+        try:
+            self.executor.spin_until_future_complete(self._done)
+        except ExternalShutdownException:
+            pass                    # the context was shut down (a signal): the way out
+        except BaseException as e:  # noqa: BLE001 - stop() raises it in the main thread
+            if self.executor.context.ok():
+                self._error = e
+
+    def start(self) -> "SpinThread":
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop spinning once the running callback (if any) returns, join the
+        thread, shut the executor down; then raise what a callback raised."""
+        self._done.set_result(True)     # its done callback wakes the executor's wait
+        if self._thread.ident is not None:
+            self._thread.join()
+        self.executor.shutdown()
+        error, self._error = self._error, None
+        if error is not None:
+            raise error
+
+    def __enter__(self) -> "SpinThread":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
 
 
 def build(name: str, factory):

@@ -31,7 +31,7 @@ import skin_node
 from skin_node.player import character_skeleton
 from msg_adapters import Reason, diagnostic_values, point_cloud2_to_vertices
 from skin_node.io.bags import BagReader
-from skin_node.ros_domain import claim_domain, domain_range
+from skin_node.ros_domain import bound_udp_ports, claim_domain, domain_ports, domain_range
 
 REPO = Path(__file__).resolve().parents[1]
 PR2_BAG = REPO.parent / "shared" / "data" / "bags" / "pr2_joint_states_mcap"
@@ -63,7 +63,8 @@ def _command(script: str, module: str) -> list[str]:
 
 @contextlib.contextmanager
 def running_node(tmp_path: Path, *ros_args: str):
-    """Start skin_node, wait for 'ready', yield (process, env, log path), then stop it."""
+    """Start skin_node, wait for 'ready', yield (process, env, log path), then stop it
+    with SIGTERM and check it exited 0 (documented; an abort would be -6)."""
     with ros_env() as env:
         log = tmp_path / f"node-{env['ROS_DOMAIN_ID']}.log"
         with open(log, "w") as out:
@@ -85,6 +86,7 @@ def running_node(tmp_path: Path, *ros_args: str):
                 except subprocess.TimeoutExpired:
                     proc.kill()
                     proc.wait()
+        assert proc.returncode == 0, f"skin_node exited {proc.returncode}:\n{log.read_text()}"
 
 
 def arm_node(tmp_path: Path, *ros_args: str):
@@ -106,16 +108,20 @@ def ros_client(env: dict, name: str):
     try:
         node = rclpy.create_node(name, context=ctx)
         ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
-        ex.add_node(node)
-        client = AsyncParameterClient(node, "skin_node")
-        assert client.wait_for_services(10.0)
+        try:
+            ex.add_node(node)
+            client = AsyncParameterClient(node, "skin_node")
+            assert client.wait_for_services(10.0)
 
-        def set_params(**kw):
-            fut = client.set_parameters([Parameter(k, value=v) for k, v in kw.items()])
-            ex.spin_until_future_complete(fut, timeout_sec=10.0)
-            return fut.result().results
+            def set_params(**kw):
+                fut = client.set_parameters([Parameter(k, value=v) for k, v in kw.items()])
+                ex.spin_until_future_complete(fut, timeout_sec=10.0)
+                return fut.result().results
 
-        yield node, ex, set_params
+            yield node, ex, set_params
+        finally:        # in order: nothing spins, then the node, then the context
+            ex.shutdown()
+            node.destroy_node()
     finally:
         rclpy.try_shutdown(context=ctx)
 
@@ -388,6 +394,7 @@ def test_ros_latency_benchmark_measures_the_node(tmp_path):
     assert 50.0 < lat["node_rss_mb"] < 1500.0 and lat["params"] == ["workers:=2"]
     assert "(workers:=2)" in res.stdout
     assert lat["domain_id"] in domain_range()     # claimed by the benchmark itself
+    assert lat["node_exit_code"] == 0
 
 
 def _pr2_or_skip() -> Path:
@@ -514,6 +521,83 @@ def test_signal_while_busy_exits_zero_within_2_s(tmp_path, sig):
             assert player.wait(5) == 0, player.stderr.read()
             assert "Traceback" not in player.stderr.read()
     assert "Traceback" not in log.read_text(), log.read_text()
+
+
+def _wait_for_line(stream, text: str, seconds: float) -> str:
+    """Read ``stream`` until a line holds ``text``; returns what was read."""
+    seen, deadline = "", time.monotonic() + seconds
+    while text not in seen and time.monotonic() < deadline:
+        line = stream.readline()
+        if not line:
+            break               # the process ended
+        seen += line
+    assert text in seen, seen
+    return seen
+
+
+def test_tools_started_and_stopped_20_times_exit_0_every_time(tmp_path):
+    """skin_bag replays and mocap_player runs, over and over against one node:
+    every one exits 0 (an abort on exit would be -6) and says nothing of a crash.
+    The player plays its frames out, or loops until SIGINT or SIGTERM, in turn."""
+    stream, _, _ = arm_stream(n_valid=10, hz=50.0, with_bad=False)
+    write_bag(tmp_path / "in", "mcap", stream)
+    player_cmd = _command("mocap_player", "skin_node.player") + ["--character", "arm"]
+    codes = []
+    with arm_node(tmp_path, "-p", "pipeline:=[dqs]") as (proc, env, log):
+        for k in range(20):
+            how = ("done", signal.SIGINT, signal.SIGTERM)[k % 3]
+            player = subprocess.Popen(
+                player_cmd + (["--frames", "30"] if how == "done" else ["--loop"]),
+                env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            try:
+                err = _wait_for_line(player.stderr, "playing 'elbow_bend'", 60.0)
+                out = play_and_record(env, tmp_path / "in", tmp_path / f"out{k}",
+                                      "--record", "skin/points", "--linger", "0.3")
+                assert "played 10 joint states" in out
+                if how != "done":
+                    player.send_signal(how)
+                err += player.communicate(timeout=30)[1]
+            finally:
+                if player.poll() is None:
+                    player.kill()
+                    player.wait()
+            codes.append(player.returncode)
+            assert "terminate called" not in err and "Traceback" not in err, err
+            if how == "done":
+                assert "sent 30 frames" in err
+        assert proc.poll() is None
+    assert codes == [0] * 20
+
+
+def test_skin_bag_interrupted_exits_1_in_order(tmp_path):
+    """SIGINT or SIGTERM while skin_bag waits for a node (its spin thread
+    running): the documented status 1 and message, no abort, a readable bag."""
+    stream, _, _ = arm_stream(n_valid=3, hz=10.0, with_bad=False)
+    write_bag(tmp_path / "in", "mcap", stream)
+    for k, sig in enumerate([signal.SIGINT, signal.SIGTERM] * 3):
+        with ros_env() as env:        # a domain of its own, where no node answers
+            bag = subprocess.Popen(
+                _command("skin_bag", "skin_node.bag_tool")
+                + [str(tmp_path / "in"), str(tmp_path / f"out{k}"), "--wait", "60"],
+                env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            try:
+                # Its participant binds the domain's ports once ROS is up: signal then.
+                ports = set(domain_ports(int(env["ROS_DOMAIN_ID"])))
+                deadline = time.monotonic() + 60.0
+                while not ports & bound_udp_ports() and bag.poll() is None \
+                        and time.monotonic() < deadline:
+                    time.sleep(0.05)
+                time.sleep(0.05 * k)          # now and then a little later
+                bag.send_signal(sig)
+                out, err = bag.communicate(timeout=30)
+            finally:
+                if bag.poll() is None:
+                    bag.kill()
+                    bag.wait()
+        assert bag.returncode == 1, (sig, bag.returncode, err)
+        assert err.strip() == "skin_bag: interrupted; the bag holds what was recorded so far"
+        with BagReader(tmp_path / f"out{k}") as reader:     # a valid bag, with nothing in it
+            assert list(reader.messages()) == []
 
 
 @pytest.mark.parametrize("content, args", [

@@ -8,8 +8,8 @@ ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, waits until it has latched
 ``rate`` Hz from the walk clip for ``seconds`` seconds. Every JointState's
 ``header.stamp`` is the send time on this process's clock; the node copies it
 into ``skin/points``, so latency = receive time - output stamp. Reports p50 /
-p99 latency, outputs vs inputs, and the node's ``frames_skipped_stale`` from
-``skin/diagnostics``.
+p99 latency, outputs vs inputs, the node's ``frames_skipped_stale`` from
+``skin/diagnostics``, and its exit status on SIGINT (0 when it shut down in order).
 """
 from __future__ import annotations
 
@@ -21,7 +21,6 @@ import signal
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 
 import numpy as np
@@ -59,7 +58,7 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     from msg_adapters import channels_to_joint_state, diagnostic_values, header_stamp_ns
     from skin_node import load_character
     from skin_node.builtin.characters import BUILTIN_CHARACTERS
-    from skin_node.node import QOS_JOINT_STATES, QOS_LATCHED, QOS_STREAM
+    from skin_node.node import QOS_JOINT_STATES, QOS_LATCHED, QOS_STREAM, SpinThread
     from skin_node.ros_domain import claim_domain
 
     if domain is None:
@@ -83,7 +82,7 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     proc = subprocess.Popen(_command() + ["--ros-args", "-p", f"character:={character}",
                                           "-p", f"weights:={weights}"] + extra,
                             stdout=log, stderr=subprocess.STDOUT, env=env)
-    rclpy.init()
+    rclpy.init(domain_id=domain)
     node = rclpy.create_node("skin_bench_latency")
     ex = SingleThreadedExecutor()
     ex.add_node(node)
@@ -113,8 +112,7 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     # messages; the feeder below sleeps until each send is due. (Spinning with
     # 2 ms timeouts between sends, and deserializing every cloud, cost this
     # process about a quarter of a core, taken from the node it measures.)
-    spinner = threading.Thread(target=ex.spin, name="skin_bench_spin", daemon=True)
-    spinner.start()
+    spinner = SpinThread(ex, "skin_bench_spin").start()
     t_setup = time.monotonic()
     try:
         while not ready:
@@ -143,8 +141,7 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
                 break
         rss_mb = _rss_mb(proc.pid)
     finally:
-        ex.shutdown(timeout_sec=1.0)
-        spinner.join(timeout=2.0)
+        spinner.stop()
         node.destroy_node()
         rclpy.try_shutdown()
         if proc.poll() is None:
@@ -166,7 +163,7 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
             "skipped_stale": int(diag.get("frames_skipped_stale", -1)),
             "node_received": int(diag.get("frames_received", -1)),
             "node_ms_per_frame": float(diag.get("ms_per_frame", "nan")),
-            "node_rss_mb": rss_mb,
+            "node_rss_mb": rss_mb, "node_exit_code": proc.returncode,
             "domain_id": domain, "params": list(params or [])}
 
 
