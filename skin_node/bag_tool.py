@@ -129,9 +129,13 @@ def node_summary(before: dict | None, after: dict | None, sent: int) -> str:
         shown = ", ".join(unknown[:3]) + (", ..." if len(unknown) > 3 else "")
         hints.append(f"no name ({shown}) is a channel of the character: pass "
                      "-p name_map:=MAP.yaml to skin_node (incoming: channel)")
+    jumps = delta("time_jumps_back")
+    if jumps > 0:
+        text += (f"; time jumped back {jumps} time{'s' if jumps > 1 else ''} "
+                 "(a replay or restart: skinned on)")
     if "stamp_backwards" in rejected:
-        hints.append("header stamps go backwards: play one topic (--topic) or restart the "
-                     "node between bags")
+        hints.append("header stamps step back by less than the node's time_jump_tolerance "
+                     "(interleaved sources?): play one topic (--topic)")
     return text + ("; " + "; ".join(hints) if hints else "")
 
 

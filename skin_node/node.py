@@ -21,7 +21,17 @@ Topics (relative, so they can be remapped)
     Only built while someone subscribes.
 ``skin/diagnostics`` (pub, diagnostic_msgs/DiagnosticArray, 1 Hz)
     ms per stage, frames processed / skipped as stale / rejected by reason,
-    frames published by each worker, unknown joint names.
+    frames published by each worker, unknown joint names, jumps back in time.
+
+Time
+----
+Stamps must not go back, with one exception: a stamp older than the last
+accepted one by more than ``time_jump_tolerance`` seconds is a restart of the
+source (a bag replayed or looped, a mocap source restarted, a simulator
+resetting its clock), as robot_state_publisher takes it. The node's time
+restarts there, the pose is skinned, and the jump is counted
+(``time_jumps_back``) and logged. A smaller step back is a reordering, and
+rejected as ``stamp_backwards``.
 
 Newest frame first
 ------------------
@@ -69,9 +79,9 @@ from std_msgs.msg import Header
 from visualization_msgs.msg import Marker
 
 import skin_node
-from msg_adapters import (ChannelMapper, JointStateError, Reason, diagnostic_array,
-                          joint_state_to_arrays, load_name_map, mesh_to_msg,
-                          triangle_list_marker_cdr, vertices_to_point_cloud2)
+from msg_adapters import (TIME_JUMP_TOLERANCE_S, ChannelMapper, JointStateError, Reason,
+                          StampOrder, diagnostic_array, joint_state_to_arrays, load_name_map,
+                          mesh_to_msg, triangle_list_marker_cdr, vertices_to_point_cloud2)
 
 NODE_NAME = "skin_node"
 THROTTLE_S = 2.0
@@ -183,7 +193,7 @@ class SkinNode(Node):
         self._rejected: Counter = Counter()
         self._received = self._processed = self._stale = self._failed = 0
         self._worker_frames = [0] * workers
-        self._last_stamp_ns = -1
+        self._stamps = StampOrder(p("time_jump_tolerance"))
         self._period = {"frames": 0, "deform_ms": 0.0, "latency_ms": 0.0}
         self._timings: dict = dict(self._pipes[0].timings)
         # One-slot mailbox between the callback and the workers; every pose taken
@@ -250,6 +260,12 @@ class SkinNode(Node):
             type=S, read_only=True,
             description="YAML file mapping incoming joint names to channel names; "
                         "'' = names are channel names"))
+        self.declare_parameter("time_jump_tolerance", TIME_JUMP_TOLERANCE_S, ParameterDescriptor(
+            type=ParameterType.PARAMETER_DOUBLE,
+            floating_point_range=[FloatingPointRange(from_value=0.0, to_value=3600.0, step=0.0)],
+            description="seconds: a stamp older than the last accepted one by more restarts "
+                        "time (bag replayed, source restarted: counted in time_jumps_back); "
+                        "by this or less, it is rejected as stamp_backwards"))
         for name, spec in skin_node.PIPELINE_PARAMS.items():
             default = list(spec.default) if spec.type is list else spec.default
             self.declare_parameter(name, default, _spec_descriptor(name, spec))
@@ -277,6 +293,8 @@ class SkinNode(Node):
             return SetParametersResult(successful=False, reason=(
                 f"warm_start needs workers:=1, not {len(self._pipes)}"))
         self._pipeline_kwargs = kwargs
+        if "time_jump_tolerance" in updates:
+            self._stamps.tolerance_s = updates["time_jump_tolerance"]
         with self._cond:
             c = self._config
             c["version"] += 1
@@ -317,9 +335,7 @@ class SkinNode(Node):
         self._received += 1
         try:
             stamp_ns = _stamp_ns(msg.header.stamp)
-            if stamp_ns < self._last_stamp_ns:
-                raise JointStateError(Reason.STAMP_BACKWARDS,
-                                      f"stamp {stamp_ns} ns < previous {self._last_stamp_ns} ns")
+            restart = self._stamps.check(stamp_ns)
             names, positions = joint_state_to_arrays(msg)
             q = self._mapper.apply(names, positions).copy()
         except JointStateError as e:
@@ -327,7 +343,12 @@ class SkinNode(Node):
             self.get_logger().warning(f"joint_states rejected ({sum(self._rejected.values())} "
                                       f"so far): {e}", throttle_duration_sec=THROTTLE_S)
             return
-        self._last_stamp_ns = stamp_ns
+        if restart:
+            self.get_logger().info(
+                f"time jumped back {(self._stamps.last_ns - stamp_ns) * 1e-9:.3f} s "
+                f"(stamp {stamp_ns} ns): a restart of the source, time restarts here "
+                f"({self._stamps.jumps_back + 1} so far)", throttle_duration_sec=THROTTLE_S)
+        self._stamps.accept(stamp_ns, restart)
         with self._cond:
             if self._pending is not None:
                 self._stale += 1
@@ -417,6 +438,7 @@ class SkinNode(Node):
             **rejected,
             "unknown_names": ",".join(sorted(unknown)),
             "unknown_name_count": len(unknown),
+            "time_jumps_back": self._stamps.jumps_back,
             "fps": float(period["frames"]),
             "ms_per_frame": period["deform_ms"] / n,
             "ms_receive_to_publish": period["latency_ms"] / n,

@@ -227,6 +227,7 @@ def test_replay_answers_each_valid_message_once_and_counts_bad_ones(tmp_path, st
     for reason, stamps in bad.items():
         assert int(diag[f"rejected_{reason.value}"]) == len(stamps), reason
     assert diag["unknown_names"] == "caster_wheel,gripper"
+    assert int(diag["time_jumps_back"]) == 0       # 25 ms back is a reordering, not a restart
     assert "rejected" in log.read_text()  # the throttled warning
 
 
@@ -289,6 +290,39 @@ def test_a_gltf_characters_own_clip_through_the_node(tmp_path):
         assert np.abs(X - pipe.deform(q)).max() < 1e-6
         moved = max(moved, float(np.abs(X - pipe.character.V).max()))
     assert moved > 0.3                  # the walk moves the leg, root and all
+
+
+def _replayed_bag(tmp_path: Path, source: str) -> tuple[Path, list[int], list[str], list[str]]:
+    """(bag, its stamps, skin_bag arguments, node arguments) of a generated arm bag
+    or of the first 150 messages of the real PR2 one (skipped when absent)."""
+    if source == "pr2":
+        bag, n = _pr2_or_skip(), 150
+        with BagReader(bag) as reader:
+            stamps = [stamp_ns(deserialize_message(raw, JointState))
+                      for _, _, raw in reader.messages("sensor_msgs/msg/JointState")][:n]
+        return bag, stamps, ["--limit", str(n)], ["-p", f"name_map:={NAME_MAP}"]
+    stream, valid, _ = arm_stream(n_valid=40, hz=20.0, with_bad=False)
+    write_bag(tmp_path / "in", "mcap", stream)
+    return tmp_path / "in", valid, [], []
+
+
+@pytest.mark.parametrize("source", ["generated", "pr2"])
+def test_a_bag_replayed_again_is_skinned_again(tmp_path, source):
+    """The second replay goes back in time by the bag's length: a restart of the
+    source (counted, logged once), not a stream of stamp_backwards."""
+    bag, stamps, bag_args, node_args = _replayed_bag(tmp_path, source)
+    with arm_node(tmp_path, "-p", "pipeline:=[dqs, smooth]", *node_args) as (proc, env, log):
+        outs = [play_and_record(env, bag, tmp_path / f"out{k}", "--lockstep", "1", *bag_args)
+                for k in (1, 2)]
+        assert proc.poll() is None
+        assert log.read_text().count("time jumped back") == 1
+    assert "time jumped back" not in outs[0] and "time jumped back 1 time " in outs[1], outs
+    for k in (1, 2):
+        clouds, diag = read_outputs(tmp_path / f"out{k}")
+        assert [stamp_ns(c) for c in clouds] == stamps, f"replay {k}"
+        assert int(diag["time_jumps_back"]) == k - 1
+    assert int(diag["frames_processed"]) == int(diag["frames_received"]) == 2 * len(stamps)
+    assert int(diag["rejected_total"]) == 0
 
 
 def test_burst_processes_newest_and_counts_stale(tmp_path):
