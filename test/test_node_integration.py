@@ -11,10 +11,8 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import shutil
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -31,6 +29,7 @@ import skin_node
 from skin_node.player import character_skeleton
 from msg_adapters import Reason, diagnostic_values, point_cloud2_to_vertices
 from skin_node.io.bags import BagReader
+from skin_node.processes import command as _command, stop, wait_for_log
 from skin_node.ros_domain import bound_udp_ports, claim_domain, domain_ports, domain_range
 
 REPO = Path(__file__).resolve().parents[1]
@@ -56,11 +55,6 @@ def ros_env():
         yield dict(_base_env(), ROS_DOMAIN_ID=str(claim.domain))
 
 
-def _command(script: str, module: str) -> list[str]:
-    exe = shutil.which(script)
-    return [exe] if exe else [sys.executable, "-m", module]
-
-
 @contextlib.contextmanager
 def running_node(tmp_path: Path, *ros_args: str):
     """Start skin_node, wait for 'ready', yield (process, env, log path), then stop it
@@ -72,20 +66,10 @@ def running_node(tmp_path: Path, *ros_args: str):
                 _command("skin_node", "skin_node.node") + ["--ros-args", *ros_args],
                 stdout=out, stderr=subprocess.STDOUT, env=env, cwd=REPO)
         try:
-            deadline = time.monotonic() + READY_TIMEOUT
-            while "]: ready in" not in log.read_text():
-                if proc.poll() is not None or time.monotonic() > deadline:
-                    pytest.fail(f"skin_node did not come up:\n{log.read_text()}")
-                time.sleep(0.2)
+            wait_for_log(proc, log, "]: ready in", READY_TIMEOUT)
             yield proc, env, log
         finally:
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-                try:
-                    proc.wait(5)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait()
+            stop(proc)
         assert proc.returncode == 0, f"skin_node exited {proc.returncode}:\n{log.read_text()}"
 
 
@@ -592,9 +576,7 @@ def test_tools_started_and_stopped_20_times_exit_0_every_time(tmp_path):
                     player.send_signal(how)
                 err += player.communicate(timeout=30)[1]
             finally:
-                if player.poll() is None:
-                    player.kill()
-                    player.wait()
+                stop(player, signal.SIGKILL)
             codes.append(player.returncode)
             assert "terminate called" not in err and "Traceback" not in err, err
             if how == "done":
@@ -625,9 +607,7 @@ def test_skin_bag_interrupted_exits_1_in_order(tmp_path):
                 bag.send_signal(sig)
                 out, err = bag.communicate(timeout=30)
             finally:
-                if bag.poll() is None:
-                    bag.kill()
-                    bag.wait()
+                stop(bag, signal.SIGKILL)
         assert bag.returncode == 1, (sig, bag.returncode, err)
         assert err.strip() == "skin_bag: interrupted; the bag holds what was recorded so far"
         with BagReader(tmp_path / f"out{k}") as reader:     # a valid bag, with nothing in it

@@ -45,11 +45,6 @@ ABORTED = (-6, 134)          # SIGABRT, as Popen and as a shell report it
 sys.path.append(str(REPO))
 
 
-def _command(script: str, module: str) -> list[str]:
-    exe = shutil.which(script)
-    return [exe] if exe else [sys.executable, "-m", module]
-
-
 def _env(domain: int | None = None) -> dict:
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1",
                RCUTILS_LOGGING_BUFFERED_STREAM="0")
@@ -125,6 +120,7 @@ def _last_diagnostics(bag: Path) -> dict:
 
 def run_replays(replays: int, bag: Path | None, limit: int, work: Path) -> dict:
     """``replays`` skin_bag replays of one bag into one node."""
+    from skin_node.processes import command as _command, stop, wait_for_log
     from skin_node.ros_domain import claim_domain
 
     node_args = ["--ros-args", "-p", "character:=arm", "-p", "surface_vertices:=2000"]
@@ -141,11 +137,7 @@ def run_replays(replays: int, bag: Path | None, limit: int, work: Path) -> dict:
             node = subprocess.Popen(_command("skin_node", "skin_node.node") + node_args,
                                     stdout=out, stderr=subprocess.STDOUT, env=env, cwd=REPO)
         try:
-            deadline = time.monotonic() + 300
-            while "]: ready in" not in log.read_text():
-                if node.poll() is not None or time.monotonic() > deadline:
-                    raise RuntimeError(f"skin_node did not come up:\n{log.read_text()[-2000:]}")
-                time.sleep(0.2)
+            wait_for_log(node, log, "]: ready in", 300.0)
             print(f"stress: skin_node ready on domain {claim.domain}; {replays} replays of "
                   f"{bag} (first {limit} messages)", flush=True)
             for k in range(replays):
@@ -168,13 +160,7 @@ def run_replays(replays: int, bag: Path | None, limit: int, work: Path) -> dict:
                     diag = _last_diagnostics(out_bag)
                 shutil.rmtree(out_bag, ignore_errors=True)
         finally:
-            if node.poll() is None:
-                node.send_signal(signal.SIGTERM)
-                try:
-                    node.wait(10)
-                except subprocess.TimeoutExpired:
-                    node.kill()
-                    node.wait()
+            stop(node, signal.SIGTERM, 10.0)
     print(f"stress: skin_node exited {node.returncode} on SIGTERM", flush=True)
     return {"replays": replays, "aborts": aborts,
             "nonzero": sum(c != 0 for c in codes), "unskinned": sum(n == 0 for n in skins),

@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -24,11 +23,6 @@ import tempfile
 import time
 
 import numpy as np
-
-
-def _command() -> list:
-    exe = shutil.which("skin_node")
-    return [exe] if exe else [sys.executable, "-m", "skin_node.node"]
 
 
 def _rss_mb(pid: int) -> float:
@@ -59,6 +53,7 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     from skin_node import load_character
     from skin_node.builtin.characters import BUILTIN_CHARACTERS
     from skin_node.node import QOS_JOINT_STATES, QOS_LATCHED, QOS_STREAM, SpinThread
+    from skin_node.processes import command, stop
     from skin_node.ros_domain import claim_domain
 
     if domain is None:
@@ -79,8 +74,9 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     log = tempfile.NamedTemporaryFile("w+", suffix=".log", delete=False)
     extra = [a for p in (params or []) for a in ("-p", p)]
     extra += ["-p", f"surface_vertices:={surface_vertices}"] if builtin else []
-    proc = subprocess.Popen(_command() + ["--ros-args", "-p", f"character:={character}",
-                                          "-p", f"weights:={weights}"] + extra,
+    proc = subprocess.Popen(command("skin_node", "skin_node.node")
+                            + ["--ros-args", "-p", f"character:={character}",
+                               "-p", f"weights:={weights}"] + extra,
                             stdout=log, stderr=subprocess.STDOUT, env=env)
     rclpy.init(domain_id=domain)
     node = rclpy.create_node("skin_bench_latency")
@@ -144,13 +140,7 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
         spinner.stop()
         node.destroy_node()
         rclpy.try_shutdown()
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop(proc, signal.SIGINT, 10.0)
         log.close()
         os.unlink(log.name)
     L = np.array(lat) if lat else np.array([np.nan])
