@@ -391,8 +391,7 @@ class SkinNode(Node):
                     return
             try:
                 if V is not None:
-                    self._publish(V, stamp, frame_id, pipe, deform_ms, t_received)
-                    self._worker_frames[w] += 1
+                    self._publish(w, V, stamp, frame_id, pipe, deform_ms, t_received)
             except Exception as e:  # noqa: BLE001
                 if not self._stopping:
                     self._count_failure()
@@ -408,32 +407,34 @@ class SkinNode(Node):
         with self._cond:
             self._failed += 1
 
-    def _publish(self, V: np.ndarray, stamp, frame_id: str, pipe, deform_ms: float,
+    def _publish(self, w: int, V: np.ndarray, stamp, frame_id: str, pipe, deform_ms: float,
                  t_received: float) -> None:
         header = Header(stamp=stamp, frame_id=frame_id)
         self._points_pub.publish(vertices_to_point_cloud2(V, header))
         if self._marker_pub.get_subscription_count() > 0:
             self._marker_pub.publish(triangle_list_marker_cdr(V, self.character.F, header))
-        self._processed += 1
         self._timings = dict(pipe.timings)
-        with self._cond:
+        with self._cond:                # counted together: diagnostics read them together
+            self._processed += 1
+            self._worker_frames[w] += 1
             self._period["frames"] += 1
             self._period["deform_ms"] += deform_ms
             self._period["latency_ms"] += 1e3 * (time.perf_counter() - t_received)
 
     def _on_diagnostics_timer(self) -> None:
-        with self._cond:
+        with self._cond:                # one consistent snapshot of the workers' counts
             period, self._period = self._period, {"frames": 0, "deform_ms": 0.0,
                                                   "latency_ms": 0.0}
+            processed, per_worker = self._processed, list(self._worker_frames)
         n = max(period["frames"], 1)
         unknown = self._mapper.unknown_counts
         rejected = {f"rejected_{r.value}": self._rejected[r.value] for r in Reason}
         values = {
             "frames_received": self._received,
-            "frames_processed": self._processed,
+            "frames_processed": processed,
             "frames_skipped_stale": self._stale,
             "frames_failed": self._failed,
-            "frames_per_worker": ",".join(map(str, self._worker_frames)),
+            "frames_per_worker": ",".join(map(str, per_worker)),
             "rejected_total": sum(self._rejected.values()),
             **rejected,
             "unknown_names": ",".join(sorted(unknown)),
@@ -445,7 +446,7 @@ class SkinNode(Node):
             **{f"ms_{k}": float(v) for k, v in self._timings.items()},
         }
         level = "error" if self._failed else "warn" if values["rejected_total"] or unknown else "ok"
-        message = (f"{self._processed} processed, {self._stale} skipped as stale, "
+        message = (f"{processed} processed, {self._stale} skipped as stale, "
                    f"{values['rejected_total']} rejected")
         self._diag_pub.publish(diagnostic_array(
             Header(stamp=self.get_clock().now().to_msg()), f"{NODE_NAME}: pipeline",

@@ -376,9 +376,12 @@ def test_two_workers_both_take_a_parameter_change(tmp_path):
                 deadline = time.monotonic() + 10.0
                 while time.monotonic() < deadline and (not got or stamp_ns(got[-1]) != max(poses)):
                     ex.spin_once(timeout_sec=0.01)
-            deadline = time.monotonic() + 5.0     # diagnostics counting every frame sent
+            # Diagnostics counting every frame sent and every skin received: one
+            # taken while the last burst was still being deformed counts fewer.
+            deadline = time.monotonic() + 5.0
             while time.monotonic() < deadline and not (
-                    diags and int(diags[-1]["frames_received"]) == len(poses)):
+                    diags and int(diags[-1]["frames_received"]) == len(poses)
+                    and int(diags[-1]["frames_processed"]) == len(got)):
                 ex.spin_once(timeout_sec=0.1)
         assert log.read_text().count("parameters applied") == 1
     out = [stamp_ns(c) for c in got]
