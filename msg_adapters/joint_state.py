@@ -20,6 +20,13 @@ from sensor_msgs.msg import JointState
 #: larger values are unit mix-ups (degrees, millimetres) or garbage.
 MAX_ABS_POSITION = 1000.0
 
+#: Default of :class:`StampOrder`'s tolerance (the node's ``time_jump_tolerance``):
+#: a stamp this much or less older than the last accepted one is a reordering
+#: (two publishers, a late packet) and rejected; one older by more is a restart of
+#: the source. Reorderings are milliseconds; a restart goes back by a bag's or a
+#: clip's length, or to a simulator's zero.
+TIME_JUMP_TOLERANCE_S = 0.5
+
 
 class Reason(str, enum.Enum):
     """Why a JointState was rejected; the value is the diagnostics key."""
@@ -84,6 +91,65 @@ def joint_state_to_arrays(msg: JointState,
         raise JointStateError(Reason.OUT_OF_RANGE,
                               f"|{names[i]}| = {abs(positions[i]):g} > {max_abs:g}")
     return names, positions
+
+
+class StampOrder:
+    """Header stamps of one JointState stream, in order, with restarts.
+
+    Like robot_state_publisher, which takes a jump back in time for a restart
+    of its source, a stamp older than the last accepted one by more than
+    ``tolerance_s`` restarts the stream's time there: a looped or replayed
+    bag, a restarted mocap source, a simulator resetting its clock. A smaller
+    step back is a reordering and rejected (STAMP_BACKWARDS), as ever.
+
+    :meth:`check` a stamp before the rest of the message, and :meth:`accept`
+    it once the whole message was accepted, so a message rejected for another
+    reason neither moves time nor counts as a restart.
+
+    Parameters
+    ----------
+    tolerance_s : float
+        Seconds, >= 0 (0: every step back is a restart).
+    """
+
+    def __init__(self, tolerance_s: float = TIME_JUMP_TOLERANCE_S) -> None:
+        self.tolerance_s = tolerance_s
+        self.last_ns: int | None = None     # newest accepted stamp
+        self.jumps_back = 0                 # restarts accepted so far
+
+    @property
+    def tolerance_s(self) -> float:
+        return self._tolerance_ns * 1e-9
+
+    @tolerance_s.setter
+    def tolerance_s(self, seconds: float) -> None:
+        if not seconds >= 0.0:
+            raise ValueError(f"time jump tolerance must be >= 0 s, got {seconds}")
+        self._tolerance_ns = round(seconds * 1e9)
+
+    def check(self, stamp_ns: int) -> bool:
+        """True when ``stamp_ns`` would restart time, False when it is in order.
+
+        Raises
+        ------
+        JointStateError
+            STAMP_BACKWARDS when it is older than the last accepted stamp by
+            the tolerance or less.
+        """
+        if self.last_ns is None or stamp_ns >= self.last_ns:
+            return False
+        if self.last_ns - stamp_ns > self._tolerance_ns:
+            return True
+        raise JointStateError(
+            Reason.STAMP_BACKWARDS,
+            f"stamp {stamp_ns} ns < previous {self.last_ns} ns, by "
+            f"{(self.last_ns - stamp_ns) * 1e-6:.1f} ms: within the "
+            f"{self.tolerance_s * 1e3:g} ms of a reordering")
+
+    def accept(self, stamp_ns: int, restart: bool) -> None:
+        """Make ``stamp_ns`` (checked: ``restart`` is what :meth:`check` said) the newest."""
+        self.jumps_back += restart
+        self.last_ns = stamp_ns
 
 
 def load_name_map(path: str | Path) -> dict[str, str]:

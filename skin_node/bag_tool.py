@@ -20,12 +20,17 @@ The summary line says what the node made of the poses, from its
 ``skin/diagnostics`` (the counters' change over the replay): how many it
 received, answered, skipped as stale and rejected, by reason, with a hint for
 the usual cause (names that are no channel of the character: a name map).
+
+SIGINT or SIGTERM stops it with status 1, after writing what was recorded so
+far into a valid bag.
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import queue
+import signal
 import sys
 import threading
 import time
@@ -34,15 +39,16 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
-from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import JointState
 
 from msg_adapters import Reason, diagnostic_values, header_stamp_ns
 from skin_node.io.bags import BagReader
-from skin_node.node import QOS_JOINT_STATES, init_ros, setting_up
+from skin_node.node import QOS_JOINT_STATES, SpinThread
 
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 POINTS_TOPIC = "skin/points"
@@ -123,9 +129,13 @@ def node_summary(before: dict | None, after: dict | None, sent: int) -> str:
         shown = ", ".join(unknown[:3]) + (", ..." if len(unknown) > 3 else "")
         hints.append(f"no name ({shown}) is a channel of the character: pass "
                      "-p name_map:=MAP.yaml to skin_node (incoming: channel)")
+    jumps = delta("time_jumps_back")
+    if jumps > 0:
+        text += (f"; time jumped back {jumps} time{'s' if jumps > 1 else ''} "
+                 "(a replay or restart: skinned on)")
     if "stamp_backwards" in rejected:
-        hints.append("header stamps go backwards: play one topic (--topic) or restart the "
-                     "node between bags")
+        hints.append("header stamps step back by less than the node's time_jump_tolerance "
+                     "(interleaved sources?): play one topic (--topic)")
     return text + ("; " + "; ".join(hints) if hints else "")
 
 
@@ -205,6 +215,28 @@ class BagRecorder(Node):
         return self._playing
 
 
+class Interrupted(Exception):
+    """SIGINT or SIGTERM arrived."""
+
+
+_SIGNALLED = threading.Event()
+
+
+def _on_signal(signum, frame) -> None:
+    _SIGNALLED.set()
+
+
+def _check() -> None:
+    """Raise :class:`Interrupted` once SIGINT or SIGTERM arrived.
+
+    The signal only sets a flag, which the main thread polls between its short
+    waits: neither an exception nor a context shut down under it can land in
+    the middle of making the node or of joining the spin thread.
+    """
+    if _SIGNALLED.is_set():
+        raise Interrupted
+
+
 def _send_and_wait(node: BagRecorder, raw: bytes, seconds: float) -> bool:
     """Publish one joint state and wait up to ``seconds`` for a cloud with its
     stamp or a later one, writing what arrives meanwhile. True when it came."""
@@ -216,6 +248,7 @@ def _send_and_wait(node: BagRecorder, raw: bytes, seconds: float) -> bool:
     end = time.monotonic() + seconds
     while True:
         node.write_pending()
+        _check()
         with node.answered:
             if node.answered_ns is not None and node.answered_ns >= stamp_ns:
                 return True
@@ -230,10 +263,66 @@ def _sleep_writing(node: BagRecorder, seconds: float) -> None:
     end = time.monotonic() + seconds
     while True:
         node.write_pending()
+        _check()
         left = end - time.monotonic()
         if left <= 0:
             return
         time.sleep(min(left, 0.02))
+
+
+def _wait_for_node(node: BagRecorder, seconds: float) -> bool:
+    """Wait up to ``seconds`` until the node and we are matched both ways."""
+    deadline = time.monotonic() + seconds
+    while not node.matched():
+        _check()
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+    # Matching is not symmetric in time: give the node's reader a moment to
+    # match our writer too, or the first messages can be lost.
+    _sleep_writing(node, 0.5)
+    return True
+
+
+def _play(node: BagRecorder, messages: list[tuple[int, bytes]],
+          args: argparse.Namespace) -> tuple[float, int]:
+    """Publish ``messages`` at the recorded rate or in lockstep; returns
+    (seconds played, messages left unanswered in lockstep)."""
+    t0, start, unanswered = messages[0][0], time.monotonic(), 0
+    for i, (t, raw) in enumerate(messages):
+        if not args.lockstep:
+            _sleep_writing(node, start + (t - t0) * 1e-9 / args.rate - time.monotonic())
+            node.pub.publish(raw)
+            continue
+        unanswered += not _send_and_wait(node, raw, args.lockstep)
+        if (i + 1) % 500 == 0:
+            print(f"skin_bag: {i + 1}/{len(messages)} sent, {unanswered} unanswered",
+                  flush=True)
+    return time.monotonic() - start, unanswered
+
+
+def _record(node: BagRecorder, executor, messages: list[tuple[int, bytes]],
+            args: argparse.Namespace) -> tuple[str, float, int]:
+    """Spin ``executor`` while ``node`` plays ``messages`` and records.
+
+    Returns (outcome, seconds played, unanswered in lockstep); outcome is
+    "played", "no node" or "interrupted". An interrupted recording ends like a
+    finished one: whatever arrived is written, and the caller closes a valid bag.
+    """
+    outcome, played_s, unanswered = "interrupted", 0.0, 0
+    try:
+        with SpinThread(executor, "skin_bag_spin"):
+            if _wait_for_node(node, args.wait):
+                played_s, unanswered = _play(node, messages, args)
+                _sleep_writing(node, args.linger)
+                outcome = "played"
+            else:
+                outcome = "no node"
+    except Interrupted:
+        pass
+    finally:
+        node.write_pending()            # the spin has stopped: nothing more comes in
+    return outcome, played_s, unanswered
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -284,45 +373,29 @@ def main(argv: list[str] | None = None) -> int:
         print(f"skin_bag: error: {e}", file=sys.stderr)
         return 1
     storage = StoragePlugin.MCAP if args.storage == "mcap" else StoragePlugin.SQLITE3
-    init_ros(args_ros)
-    executor = SingleThreadedExecutor()
-    try:
-        # The main thread paces playback rather than spinning: let a signal interrupt it.
-        with setting_up(), Writer(args.out_bag, version=8, storage_plugin=storage) as writer:
-            node = BagRecorder(writer, topics)
-            executor.add_node(node)
-            spinner = threading.Thread(target=executor.spin, daemon=True)
-            spinner.start()
-            deadline = time.monotonic() + args.wait
-            while not node.matched():
-                if time.monotonic() > deadline:
-                    print(f"skin_bag: error: no skin_node on joint_states/{list(topics)} "
-                          f"after {args.wait:.0f} s", file=sys.stderr)
-                    return 1
-                time.sleep(0.05)
-            # Matching is not symmetric in time: give the node's reader a moment to
-            # match our writer too, or the first messages can be lost.
-            time.sleep(0.5)
-            t0, start, unanswered = messages[0][0], time.monotonic(), 0
-            for i, (t, raw) in enumerate(messages):
-                if not args.lockstep:
-                    _sleep_writing(node, start + (t - t0) * 1e-9 / args.rate - time.monotonic())
-                    node.pub.publish(raw)
-                    continue
-                unanswered += not _send_and_wait(node, raw, args.lockstep)
-                if (i + 1) % 500 == 0:
-                    print(f"skin_bag: {i + 1}/{len(messages)} sent, {unanswered} unanswered",
-                          flush=True)
-            played_s = time.monotonic() - start
-            _sleep_writing(node, args.linger)
-            executor.shutdown()
-            node.write_pending()
-            counts = node.counts
-    except KeyboardInterrupt:
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _on_signal)
+    rclpy.init(args=args_ros, signal_handler_options=SignalHandlerOptions.NO)
+    with contextlib.ExitStack() as done:        # unwinds in reverse: node, bag, context
+        done.callback(rclpy.try_shutdown)
+        try:
+            writer = done.enter_context(Writer(args.out_bag, version=8, storage_plugin=storage))
+        except WriterError as e:
+            print(f"skin_bag: error: {e}", file=sys.stderr)
+            return 1
+        node = BagRecorder(writer, topics)
+        done.callback(node.destroy_node)
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        outcome, played_s, unanswered = _record(node, executor, messages, args)
+        counts = dict(node.counts)
+    if outcome == "no node":
+        print(f"skin_bag: error: no skin_node on joint_states/{list(topics)} "
+              f"after {args.wait:.0f} s", file=sys.stderr)
+        return 1
+    if outcome == "interrupted":
         print("skin_bag: interrupted; the bag holds what was recorded so far", file=sys.stderr)
         return 1
-    finally:
-        rclpy.try_shutdown()
     lockstep = (f" in lockstep ({unanswered} unanswered within {args.lockstep:g} s)"
                 if args.lockstep else "")
     print(f"skin_bag: played {len(messages)} joint states in {played_s:.2f} s{lockstep}; "

@@ -21,7 +21,17 @@ Topics (relative, so they can be remapped)
     Only built while someone subscribes.
 ``skin/diagnostics`` (pub, diagnostic_msgs/DiagnosticArray, 1 Hz)
     ms per stage, frames processed / skipped as stale / rejected by reason,
-    frames published by each worker, unknown joint names.
+    frames published by each worker, unknown joint names, jumps back in time.
+
+Time
+----
+Stamps must not go back, with one exception: a stamp older than the last
+accepted one by more than ``time_jump_tolerance`` seconds is a restart of the
+source (a bag replayed or looped, a mocap source restarted, a simulator
+resetting its clock), as robot_state_publisher takes it. The node's time
+restarts there, the pose is skinned, and the jump is counted
+(``time_jumps_back``) and logged. A smaller step back is a reordering, and
+rejected as ``stamp_backwards``.
 
 Newest frame first
 ------------------
@@ -69,9 +79,9 @@ from std_msgs.msg import Header
 from visualization_msgs.msg import Marker
 
 import skin_node
-from msg_adapters import (ChannelMapper, JointStateError, Reason, diagnostic_array,
-                          joint_state_to_arrays, load_name_map, mesh_to_msg,
-                          triangle_list_marker_cdr, vertices_to_point_cloud2)
+from msg_adapters import (TIME_JUMP_TOLERANCE_S, ChannelMapper, JointStateError, Reason,
+                          StampOrder, diagnostic_array, joint_state_to_arrays, load_name_map,
+                          mesh_to_msg, triangle_list_marker_cdr, vertices_to_point_cloud2)
 
 NODE_NAME = "skin_node"
 THROTTLE_S = 2.0
@@ -183,7 +193,7 @@ class SkinNode(Node):
         self._rejected: Counter = Counter()
         self._received = self._processed = self._stale = self._failed = 0
         self._worker_frames = [0] * workers
-        self._last_stamp_ns = -1
+        self._stamps = StampOrder(p("time_jump_tolerance"))
         self._period = {"frames": 0, "deform_ms": 0.0, "latency_ms": 0.0}
         self._timings: dict = dict(self._pipes[0].timings)
         # One-slot mailbox between the callback and the workers; every pose taken
@@ -204,6 +214,9 @@ class SkinNode(Node):
         self._diag_pub = self.create_publisher(DiagnosticArray, "skin/diagnostics", 10)
         self._mesh_pub.publish(mesh_to_msg(self.character.V, self.character.F))
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        # stop() joins the workers. Daemon only for a set-up cut short by a signal
+        # after this point: no pose ever reaches them then, they wait on the
+        # condition (no rclpy frame on their stack), and must not hold the exit.
         self._workers = [threading.Thread(target=self._work, args=(w,), name=f"skin_worker{w}",
                                           daemon=True) for w in range(workers)]
         for t in self._workers:
@@ -247,6 +260,12 @@ class SkinNode(Node):
             type=S, read_only=True,
             description="YAML file mapping incoming joint names to channel names; "
                         "'' = names are channel names"))
+        self.declare_parameter("time_jump_tolerance", TIME_JUMP_TOLERANCE_S, ParameterDescriptor(
+            type=ParameterType.PARAMETER_DOUBLE,
+            floating_point_range=[FloatingPointRange(from_value=0.0, to_value=3600.0, step=0.0)],
+            description="seconds: a stamp older than the last accepted one by more restarts "
+                        "time (bag replayed, source restarted: counted in time_jumps_back); "
+                        "by this or less, it is rejected as stamp_backwards"))
         for name, spec in skin_node.PIPELINE_PARAMS.items():
             default = list(spec.default) if spec.type is list else spec.default
             self.declare_parameter(name, default, _spec_descriptor(name, spec))
@@ -274,6 +293,8 @@ class SkinNode(Node):
             return SetParametersResult(successful=False, reason=(
                 f"warm_start needs workers:=1, not {len(self._pipes)}"))
         self._pipeline_kwargs = kwargs
+        if "time_jump_tolerance" in updates:
+            self._stamps.tolerance_s = updates["time_jump_tolerance"]
         with self._cond:
             c = self._config
             c["version"] += 1
@@ -314,9 +335,7 @@ class SkinNode(Node):
         self._received += 1
         try:
             stamp_ns = _stamp_ns(msg.header.stamp)
-            if stamp_ns < self._last_stamp_ns:
-                raise JointStateError(Reason.STAMP_BACKWARDS,
-                                      f"stamp {stamp_ns} ns < previous {self._last_stamp_ns} ns")
+            restart = self._stamps.check(stamp_ns)
             names, positions = joint_state_to_arrays(msg)
             q = self._mapper.apply(names, positions).copy()
         except JointStateError as e:
@@ -324,7 +343,12 @@ class SkinNode(Node):
             self.get_logger().warning(f"joint_states rejected ({sum(self._rejected.values())} "
                                       f"so far): {e}", throttle_duration_sec=THROTTLE_S)
             return
-        self._last_stamp_ns = stamp_ns
+        if restart:
+            self.get_logger().info(
+                f"time jumped back {(self._stamps.last_ns - stamp_ns) * 1e-9:.3f} s "
+                f"(stamp {stamp_ns} ns): a restart of the source, time restarts here "
+                f"({self._stamps.jumps_back + 1} so far)", throttle_duration_sec=THROTTLE_S)
+        self._stamps.accept(stamp_ns, restart)
         with self._cond:
             if self._pending is not None:
                 self._stale += 1
@@ -367,8 +391,7 @@ class SkinNode(Node):
                     return
             try:
                 if V is not None:
-                    self._publish(V, stamp, frame_id, pipe, deform_ms, t_received)
-                    self._worker_frames[w] += 1
+                    self._publish(w, V, stamp, frame_id, pipe, deform_ms, t_received)
             except Exception as e:  # noqa: BLE001
                 if not self._stopping:
                     self._count_failure()
@@ -384,43 +407,46 @@ class SkinNode(Node):
         with self._cond:
             self._failed += 1
 
-    def _publish(self, V: np.ndarray, stamp, frame_id: str, pipe, deform_ms: float,
+    def _publish(self, w: int, V: np.ndarray, stamp, frame_id: str, pipe, deform_ms: float,
                  t_received: float) -> None:
         header = Header(stamp=stamp, frame_id=frame_id)
         self._points_pub.publish(vertices_to_point_cloud2(V, header))
         if self._marker_pub.get_subscription_count() > 0:
             self._marker_pub.publish(triangle_list_marker_cdr(V, self.character.F, header))
-        self._processed += 1
         self._timings = dict(pipe.timings)
-        with self._cond:
+        with self._cond:                # counted together: diagnostics read them together
+            self._processed += 1
+            self._worker_frames[w] += 1
             self._period["frames"] += 1
             self._period["deform_ms"] += deform_ms
             self._period["latency_ms"] += 1e3 * (time.perf_counter() - t_received)
 
     def _on_diagnostics_timer(self) -> None:
-        with self._cond:
+        with self._cond:                # one consistent snapshot of the workers' counts
             period, self._period = self._period, {"frames": 0, "deform_ms": 0.0,
                                                   "latency_ms": 0.0}
+            processed, per_worker = self._processed, list(self._worker_frames)
         n = max(period["frames"], 1)
         unknown = self._mapper.unknown_counts
         rejected = {f"rejected_{r.value}": self._rejected[r.value] for r in Reason}
         values = {
             "frames_received": self._received,
-            "frames_processed": self._processed,
+            "frames_processed": processed,
             "frames_skipped_stale": self._stale,
             "frames_failed": self._failed,
-            "frames_per_worker": ",".join(map(str, self._worker_frames)),
+            "frames_per_worker": ",".join(map(str, per_worker)),
             "rejected_total": sum(self._rejected.values()),
             **rejected,
             "unknown_names": ",".join(sorted(unknown)),
             "unknown_name_count": len(unknown),
+            "time_jumps_back": self._stamps.jumps_back,
             "fps": float(period["frames"]),
             "ms_per_frame": period["deform_ms"] / n,
             "ms_receive_to_publish": period["latency_ms"] / n,
             **{f"ms_{k}": float(v) for k, v in self._timings.items()},
         }
         level = "error" if self._failed else "warn" if values["rejected_total"] or unknown else "ok"
-        message = (f"{self._processed} processed, {self._stale} skipped as stale, "
+        message = (f"{processed} processed, {self._stale} skipped as stale, "
                    f"{values['rejected_total']} rejected")
         self._diag_pub.publish(diagnostic_array(
             Header(stamp=self.get_clock().now().to_msg()), f"{NODE_NAME}: pipeline",
@@ -433,13 +459,17 @@ class SkinNode(Node):
                 f"{values['ms_receive_to_publish']:.2f} ms | {message}")
 
     def stop(self) -> None:
-        """Stop the workers (each finishes the frame it is on)."""
+        """Stop the workers and join them (each finishes the frame it is on).
+
+        A worker must not outlive the node (it would publish through destroyed
+        publishers) nor the interpreter (see :class:`SpinThread`); a frame is
+        short, so the join is not cut short.
+        """
         with self._cond:
             self._stopping = True
             self._cond.notify_all()
-        deadline = time.monotonic() + 1.5
         for t in self._workers:
-            t.join(timeout=max(0.0, deadline - time.monotonic()))
+            t.join()
 
 
 _SETTING_UP = threading.Event()
@@ -491,6 +521,65 @@ def spin_until_shutdown(node: Node, future: Future | None = None) -> None:
     except Exception:
         if node.context.ok():
             raise
+
+
+class SpinThread:
+    """An executor spinning in a thread of its own, stopped in order.
+
+    For a tool whose main thread has other work (pacing a playback, feeding a
+    benchmark). Such a thread must never outlive ``main``: at interpreter exit
+    Python ends a still-running thread with ``pthread_exit`` when it next takes
+    the GIL, and for one coming back from rclpy's wait the unwind crosses a
+    ``noexcept`` C++ frame of rclpy, so ``std::terminate`` aborts the process
+    ("terminate called without an active exception", SIGABRT) after all else
+    went right. ``Executor.shutdown`` neither joins the thread nor (Jazzy)
+    waits for a running callback. So :meth:`stop` ends the spin, joins the
+    thread, and only then shuts the executor down; as a context manager, every
+    way out of the block does that.
+
+    Parameters
+    ----------
+    executor : rclpy.executors.Executor
+        With its nodes added; this thread is the only one that spins it.
+    name : str
+        The thread's name.
+    """
+
+    def __init__(self, executor, name: str = "spin") -> None:
+        self.executor = executor
+        self._done = Future()
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._spin, name=name)
+
+    def _spin(self) -> None:
+        try:
+            self.executor.spin_until_future_complete(self._done)
+        except ExternalShutdownException:
+            pass                    # the context was shut down (a signal): the way out
+        except BaseException as e:  # noqa: BLE001 - stop() raises it in the main thread
+            if self.executor.context.ok():
+                self._error = e
+
+    def start(self) -> "SpinThread":
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop spinning once the running callback (if any) returns, join the
+        thread, shut the executor down; then raise what a callback raised."""
+        self._done.set_result(True)     # its done callback wakes the executor's wait
+        if self._thread.ident is not None:
+            self._thread.join()
+        self.executor.shutdown()
+        error, self._error = self._error, None
+        if error is not None:
+            raise error
+
+    def __enter__(self) -> "SpinThread":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
 
 
 def build(name: str, factory):

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from skin_node.ros_domain import claim_domain
+
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -34,10 +36,11 @@ def test_colcon_install_layout(tmp_path):
         assert (site / package / "__init__.py").is_file()
 
     # The installed node starts from the install tree alone (not the source tree).
-    env = dict(os.environ, PYTHONPATH=str(site), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               ROS_DOMAIN_ID=str(10 + os.getpid() % 90))
-    res = subprocess.run([str(prefix / "lib" / "skin_node" / "skin_node"),
-                          "--ros-args", "-p", "character:=no_such_character"],
-                         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    with claim_domain() as claim:
+        env = dict(os.environ, PYTHONPATH=str(site), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+                   ROS_DOMAIN_ID=str(claim.domain))
+        res = subprocess.run([str(prefix / "lib" / "skin_node" / "skin_node"),
+                              "--ros-args", "-p", "character:=no_such_character"],
+                             cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
     assert res.returncode == 2
     assert res.stderr.startswith("skin_node: error: no_such_character")

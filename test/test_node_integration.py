@@ -1,19 +1,18 @@
 """The node as a process: bags of joint states in, recorded outputs checked.
 
 Each test starts ``skin_node`` (the installed console script when it is on
-PATH, else ``python -m skin_node.node``) on its own ROS_DOMAIN_ID with DDS kept
-on localhost, replays a bag written here with ``rosbags`` (rosbag2, or ROS 1)
-through ``skin_bag``, and reads the bag ``skin_bag`` recorded.
+PATH, else ``python -m skin_node.node``) on a ROS_DOMAIN_ID it claims for itself
+(``skin_node.ros_domain``) with DDS kept on localhost, replays a bag written
+here with ``rosbags`` (rosbag2, or ROS 1) through ``skin_bag``, and reads the
+bag ``skin_bag`` recorded.
 """
 from __future__ import annotations
 
 import contextlib
 import json
 import os
-import shutil
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -30,54 +29,48 @@ import skin_node
 from skin_node.player import character_skeleton
 from msg_adapters import Reason, diagnostic_values, point_cloud2_to_vertices
 from skin_node.io.bags import BagReader
+from skin_node.processes import command as _command, stop, wait_for_log
+from skin_node.ros_domain import bound_udp_ports, claim_domain, domain_ports, domain_range
 
 REPO = Path(__file__).resolve().parents[1]
 PR2_BAG = REPO.parent / "shared" / "data" / "bags" / "pr2_joint_states_mcap"
 NAME_MAP = REPO / "config" / "name_map_example.yaml"
 ARM_VERTICES = 2000
 READY_TIMEOUT = 300.0     # a cold rig cache builds the arm's tets and weights first
-_domains = iter(range(100))
 
 
-def _env() -> dict:
-    """Environment of one node + tools: a fresh domain, DDS on localhost."""
-    env = dict(os.environ)
-    env.update(ROS_DOMAIN_ID=str(10 + (os.getpid() + next(_domains)) % 90),
-               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1",
+def _base_env() -> dict:
+    """Environment of the tools: DDS on localhost, unbuffered output, this source tree."""
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1",
                RCUTILS_LOGGING_BUFFERED_STREAM="0")
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [env.get("PYTHONPATH"), str(REPO)]))
     return env
 
 
-def _command(script: str, module: str) -> list[str]:
-    exe = shutil.which(script)
-    return [exe] if exe else [sys.executable, "-m", module]
+@contextlib.contextmanager
+def ros_env():
+    """Environment of one node + tools, on a domain no other live process holds
+    for as long as the block runs."""
+    with claim_domain() as claim:
+        yield dict(_base_env(), ROS_DOMAIN_ID=str(claim.domain))
 
 
 @contextlib.contextmanager
 def running_node(tmp_path: Path, *ros_args: str):
-    """Start skin_node, wait for 'ready', yield (process, env, log path), then stop it."""
-    env = _env()
-    log = tmp_path / f"node-{env['ROS_DOMAIN_ID']}.log"
-    with open(log, "w") as out:
-        proc = subprocess.Popen(
-            _command("skin_node", "skin_node.node") + ["--ros-args", *ros_args],
-            stdout=out, stderr=subprocess.STDOUT, env=env, cwd=REPO)
-    try:
-        deadline = time.monotonic() + READY_TIMEOUT
-        while "]: ready in" not in log.read_text():
-            if proc.poll() is not None or time.monotonic() > deadline:
-                pytest.fail(f"skin_node did not come up:\n{log.read_text()}")
-            time.sleep(0.2)
-        yield proc, env, log
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+    """Start skin_node, wait for 'ready', yield (process, env, log path), then stop it
+    with SIGTERM and check it exited 0 (documented; an abort would be -6)."""
+    with ros_env() as env:
+        log = tmp_path / f"node-{env['ROS_DOMAIN_ID']}.log"
+        with open(log, "w") as out:
+            proc = subprocess.Popen(
+                _command("skin_node", "skin_node.node") + ["--ros-args", *ros_args],
+                stdout=out, stderr=subprocess.STDOUT, env=env, cwd=REPO)
+        try:
+            wait_for_log(proc, log, "]: ready in", READY_TIMEOUT)
+            yield proc, env, log
+        finally:
+            stop(proc)
+        assert proc.returncode == 0, f"skin_node exited {proc.returncode}:\n{log.read_text()}"
 
 
 def arm_node(tmp_path: Path, *ros_args: str):
@@ -99,16 +92,20 @@ def ros_client(env: dict, name: str):
     try:
         node = rclpy.create_node(name, context=ctx)
         ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
-        ex.add_node(node)
-        client = AsyncParameterClient(node, "skin_node")
-        assert client.wait_for_services(10.0)
+        try:
+            ex.add_node(node)
+            client = AsyncParameterClient(node, "skin_node")
+            assert client.wait_for_services(10.0)
 
-        def set_params(**kw):
-            fut = client.set_parameters([Parameter(k, value=v) for k, v in kw.items()])
-            ex.spin_until_future_complete(fut, timeout_sec=10.0)
-            return fut.result().results
+            def set_params(**kw):
+                fut = client.set_parameters([Parameter(k, value=v) for k, v in kw.items()])
+                ex.spin_until_future_complete(fut, timeout_sec=10.0)
+                return fut.result().results
 
-        yield node, ex, set_params
+            yield node, ex, set_params
+        finally:        # in order: nothing spins, then the node, then the context
+            ex.shutdown()
+            node.destroy_node()
     finally:
         rclpy.try_shutdown(context=ctx)
 
@@ -214,6 +211,7 @@ def test_replay_answers_each_valid_message_once_and_counts_bad_ones(tmp_path, st
     for reason, stamps in bad.items():
         assert int(diag[f"rejected_{reason.value}"]) == len(stamps), reason
     assert diag["unknown_names"] == "caster_wheel,gripper"
+    assert int(diag["time_jumps_back"]) == 0       # 25 ms back is a reordering, not a restart
     assert "rejected" in log.read_text()  # the throttled warning
 
 
@@ -249,7 +247,7 @@ def test_a_gltf_characters_own_clip_through_the_node(tmp_path):
     glb = write_animated_glb(tmp_path / "leg.glb")
     res = subprocess.run(_command("mocap_player", "skin_node.player")
                          + ["--character", str(glb), "--list-clips"],
-                         env=_env(), cwd=REPO, capture_output=True, text=True, timeout=120)
+                         env=_base_env(), cwd=REPO, capture_output=True, text=True, timeout=120)
     assert res.returncode == 0 and res.stdout.split() == ["walk", "animation1"], res.stderr
     clip = load_motion(str(glb), "walk", fps=30.0)
     t0, dt = 1_700_000_000 * 10**9, 10**9 // 30
@@ -276,6 +274,39 @@ def test_a_gltf_characters_own_clip_through_the_node(tmp_path):
         assert np.abs(X - pipe.deform(q)).max() < 1e-6
         moved = max(moved, float(np.abs(X - pipe.character.V).max()))
     assert moved > 0.3                  # the walk moves the leg, root and all
+
+
+def _replayed_bag(tmp_path: Path, source: str) -> tuple[Path, list[int], list[str], list[str]]:
+    """(bag, its stamps, skin_bag arguments, node arguments) of a generated arm bag
+    or of the first 150 messages of the real PR2 one (skipped when absent)."""
+    if source == "pr2":
+        bag, n = _pr2_or_skip(), 150
+        with BagReader(bag) as reader:
+            stamps = [stamp_ns(deserialize_message(raw, JointState))
+                      for _, _, raw in reader.messages("sensor_msgs/msg/JointState")][:n]
+        return bag, stamps, ["--limit", str(n)], ["-p", f"name_map:={NAME_MAP}"]
+    stream, valid, _ = arm_stream(n_valid=40, hz=20.0, with_bad=False)
+    write_bag(tmp_path / "in", "mcap", stream)
+    return tmp_path / "in", valid, [], []
+
+
+@pytest.mark.parametrize("source", ["generated", "pr2"])
+def test_a_bag_replayed_again_is_skinned_again(tmp_path, source):
+    """The second replay goes back in time by the bag's length: a restart of the
+    source (counted, logged once), not a stream of stamp_backwards."""
+    bag, stamps, bag_args, node_args = _replayed_bag(tmp_path, source)
+    with arm_node(tmp_path, "-p", "pipeline:=[dqs, smooth]", *node_args) as (proc, env, log):
+        outs = [play_and_record(env, bag, tmp_path / f"out{k}", "--lockstep", "1", *bag_args)
+                for k in (1, 2)]
+        assert proc.poll() is None
+        assert log.read_text().count("time jumped back") == 1
+    assert "time jumped back" not in outs[0] and "time jumped back 1 time " in outs[1], outs
+    for k in (1, 2):
+        clouds, diag = read_outputs(tmp_path / f"out{k}")
+        assert [stamp_ns(c) for c in clouds] == stamps, f"replay {k}"
+        assert int(diag["time_jumps_back"]) == k - 1
+    assert int(diag["frames_processed"]) == int(diag["frames_received"]) == 2 * len(stamps)
+    assert int(diag["rejected_total"]) == 0
 
 
 def test_burst_processes_newest_and_counts_stale(tmp_path):
@@ -345,9 +376,12 @@ def test_two_workers_both_take_a_parameter_change(tmp_path):
                 deadline = time.monotonic() + 10.0
                 while time.monotonic() < deadline and (not got or stamp_ns(got[-1]) != max(poses)):
                     ex.spin_once(timeout_sec=0.01)
-            deadline = time.monotonic() + 5.0     # diagnostics counting every frame sent
+            # Diagnostics counting every frame sent and every skin received: one
+            # taken while the last burst was still being deformed counts fewer.
+            deadline = time.monotonic() + 5.0
             while time.monotonic() < deadline and not (
-                    diags and int(diags[-1]["frames_received"]) == len(poses)):
+                    diags and int(diags[-1]["frames_received"]) == len(poses)
+                    and int(diags[-1]["frames_processed"]) == len(got)):
                 ex.spin_once(timeout_sec=0.1)
         assert log.read_text().count("parameters applied") == 1
     out = [stamp_ns(c) for c in got]
@@ -366,13 +400,12 @@ def test_ros_latency_benchmark_measures_the_node(tmp_path):
     """skin_bench ros-latency end to end on the arm: every pose it sends is
     received, answered or counted stale, and it reads stamps, memory and the
     node's parameters back."""
-    env = _env()
     out = tmp_path / "latency.json"
     cmd = _command("skin_bench", "skin_node.bench.cli") + [
         "ros-latency", "--character", "arm", "--surface-vertices", str(ARM_VERTICES),
-        "--seconds", "2", "--rate", "60", "--param", "workers:=2", "--out", str(out),
-        "--domain", env["ROS_DOMAIN_ID"]]
-    res = subprocess.run(cmd, env=env, cwd=REPO, capture_output=True, text=True, timeout=400)
+        "--seconds", "2", "--rate", "60", "--param", "workers:=2", "--out", str(out)]
+    res = subprocess.run(cmd, env=_base_env(), cwd=REPO, capture_output=True, text=True,
+                         timeout=400)
     assert res.returncode == 0, res.stdout + res.stderr
     lat = json.loads(out.read_text())
     assert lat["inputs"] in (120, 121) and lat["node_received"] == lat["inputs"]
@@ -381,6 +414,8 @@ def test_ros_latency_benchmark_measures_the_node(tmp_path):
     assert 0.0 < lat["latency_ms_p50"] <= lat["latency_ms_p99"] < 1000.0
     assert 50.0 < lat["node_rss_mb"] < 1500.0 and lat["params"] == ["workers:=2"]
     assert "(workers:=2)" in res.stdout
+    assert lat["domain_id"] in domain_range()     # claimed by the benchmark itself
+    assert lat["node_exit_code"] == 0
 
 
 def _pr2_or_skip() -> Path:
@@ -509,6 +544,79 @@ def test_signal_while_busy_exits_zero_within_2_s(tmp_path, sig):
     assert "Traceback" not in log.read_text(), log.read_text()
 
 
+def _wait_for_line(stream, text: str, seconds: float) -> str:
+    """Read ``stream`` until a line holds ``text``; returns what was read."""
+    seen, deadline = "", time.monotonic() + seconds
+    while text not in seen and time.monotonic() < deadline:
+        line = stream.readline()
+        if not line:
+            break               # the process ended
+        seen += line
+    assert text in seen, seen
+    return seen
+
+
+def test_tools_started_and_stopped_20_times_exit_0_every_time(tmp_path):
+    """skin_bag replays and mocap_player runs, over and over against one node:
+    every one exits 0 (an abort on exit would be -6) and says nothing of a crash.
+    The player plays its frames out, or loops until SIGINT or SIGTERM, in turn."""
+    stream, _, _ = arm_stream(n_valid=10, hz=50.0, with_bad=False)
+    write_bag(tmp_path / "in", "mcap", stream)
+    player_cmd = _command("mocap_player", "skin_node.player") + ["--character", "arm"]
+    codes = []
+    with arm_node(tmp_path, "-p", "pipeline:=[dqs]") as (proc, env, log):
+        for k in range(20):
+            how = ("done", signal.SIGINT, signal.SIGTERM)[k % 3]
+            player = subprocess.Popen(
+                player_cmd + (["--frames", "30"] if how == "done" else ["--loop"]),
+                env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            try:
+                err = _wait_for_line(player.stderr, "playing 'elbow_bend'", 60.0)
+                out = play_and_record(env, tmp_path / "in", tmp_path / f"out{k}",
+                                      "--record", "skin/points", "--linger", "0.3")
+                assert "played 10 joint states" in out
+                if how != "done":
+                    player.send_signal(how)
+                err += player.communicate(timeout=30)[1]
+            finally:
+                stop(player, signal.SIGKILL)
+            codes.append(player.returncode)
+            assert "terminate called" not in err and "Traceback" not in err, err
+            if how == "done":
+                assert "sent 30 frames" in err
+        assert proc.poll() is None
+    assert codes == [0] * 20
+
+
+def test_skin_bag_interrupted_exits_1_in_order(tmp_path):
+    """SIGINT or SIGTERM while skin_bag waits for a node (its spin thread
+    running): the documented status 1 and message, no abort, a readable bag."""
+    stream, _, _ = arm_stream(n_valid=3, hz=10.0, with_bad=False)
+    write_bag(tmp_path / "in", "mcap", stream)
+    for k, sig in enumerate([signal.SIGINT, signal.SIGTERM] * 3):
+        with ros_env() as env:        # a domain of its own, where no node answers
+            bag = subprocess.Popen(
+                _command("skin_bag", "skin_node.bag_tool")
+                + [str(tmp_path / "in"), str(tmp_path / f"out{k}"), "--wait", "60"],
+                env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            try:
+                # Its participant binds the domain's ports once ROS is up: signal then.
+                ports = set(domain_ports(int(env["ROS_DOMAIN_ID"])))
+                deadline = time.monotonic() + 60.0
+                while not ports & bound_udp_ports() and bag.poll() is None \
+                        and time.monotonic() < deadline:
+                    time.sleep(0.05)
+                time.sleep(0.05 * k)          # now and then a little later
+                bag.send_signal(sig)
+                out, err = bag.communicate(timeout=30)
+            finally:
+                stop(bag, signal.SIGKILL)
+        assert bag.returncode == 1, (sig, bag.returncode, err)
+        assert err.strip() == "skin_bag: interrupted; the bag holds what was recorded so far"
+        with BagReader(tmp_path / f"out{k}") as reader:     # a valid bag, with nothing in it
+            assert list(reader.messages()) == []
+
+
 @pytest.mark.parametrize("content, args", [
     (None, ()),                                   # missing file
     ("", ()),                                     # empty file
@@ -523,9 +631,11 @@ def test_bad_start_up_is_one_line_and_non_zero(tmp_path, content, args):
     if content is not None:
         path.write_text(content)
     spec = "arm" if args else str(path)
-    res = subprocess.run(
-        _command("skin_node", "skin_node.node") + ["--ros-args", "-p", f"character:={spec}", *args],
-        env=_env(), cwd=REPO, capture_output=True, text=True, timeout=120)
+    with ros_env() as env:
+        res = subprocess.run(
+            _command("skin_node", "skin_node.node") + ["--ros-args", "-p", f"character:={spec}",
+                                                       *args],
+            env=env, cwd=REPO, capture_output=True, text=True, timeout=120)
     assert res.returncode != 0
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr

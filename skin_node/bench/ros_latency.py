@@ -1,34 +1,28 @@
 """``skin_bench ros-latency``: input-to-output latency of the skin_node process.
 
 Starts the node (the ``skin_node`` console script if on PATH, else
-``python -m skin_node.node``) on its own ROS_DOMAIN_ID with
+``python -m skin_node.node``) on a ROS_DOMAIN_ID it claims for the run
+(``skin_node.ros_domain``: no other live process holds or uses it) with
 ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, waits until it has latched
 ``skin/mesh`` (it does so once set up), then publishes JointState at
 ``rate`` Hz from the walk clip for ``seconds`` seconds. Every JointState's
 ``header.stamp`` is the send time on this process's clock; the node copies it
 into ``skin/points``, so latency = receive time - output stamp. Reports p50 /
-p99 latency, outputs vs inputs, and the node's ``frames_skipped_stale`` from
-``skin/diagnostics``.
+p99 latency, outputs vs inputs, the node's ``frames_skipped_stale`` from
+``skin/diagnostics``, and its exit status on SIGINT (0 when it shut down in order).
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
-import shutil
 import signal
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 
 import numpy as np
-
-
-def _command() -> list:
-    exe = shutil.which("skin_node")
-    return [exe] if exe else [sys.executable, "-m", "skin_node.node"]
 
 
 def _rss_mb(pid: int) -> float:
@@ -58,9 +52,14 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     from msg_adapters import channels_to_joint_state, diagnostic_values, header_stamp_ns
     from skin_node import load_character
     from skin_node.builtin.characters import BUILTIN_CHARACTERS
-    from skin_node.node import QOS_JOINT_STATES, QOS_LATCHED, QOS_STREAM
+    from skin_node.node import QOS_JOINT_STATES, QOS_LATCHED, QOS_STREAM, SpinThread
+    from skin_node.processes import command, stop
+    from skin_node.ros_domain import claim_domain
 
-    domain = domain if domain is not None else 60 + os.getpid() % 40
+    if domain is None:
+        with claim_domain() as claim:           # held until the node is gone
+            return measure_latency(seconds, rate, character, surface_vertices, claim.domain,
+                                   ready_timeout, params, weights, bvh)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                PYTHONUNBUFFERED="1")
     os.environ.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
@@ -75,10 +74,11 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     log = tempfile.NamedTemporaryFile("w+", suffix=".log", delete=False)
     extra = [a for p in (params or []) for a in ("-p", p)]
     extra += ["-p", f"surface_vertices:={surface_vertices}"] if builtin else []
-    proc = subprocess.Popen(_command() + ["--ros-args", "-p", f"character:={character}",
-                                          "-p", f"weights:={weights}"] + extra,
+    proc = subprocess.Popen(command("skin_node", "skin_node.node")
+                            + ["--ros-args", "-p", f"character:={character}",
+                               "-p", f"weights:={weights}"] + extra,
                             stdout=log, stderr=subprocess.STDOUT, env=env)
-    rclpy.init()
+    rclpy.init(domain_id=domain)
     node = rclpy.create_node("skin_bench_latency")
     ex = SingleThreadedExecutor()
     ex.add_node(node)
@@ -108,8 +108,7 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     # messages; the feeder below sleeps until each send is due. (Spinning with
     # 2 ms timeouts between sends, and deserializing every cloud, cost this
     # process about a quarter of a core, taken from the node it measures.)
-    spinner = threading.Thread(target=ex.spin, name="skin_bench_spin", daemon=True)
-    spinner.start()
+    spinner = SpinThread(ex, "skin_bench_spin").start()
     t_setup = time.monotonic()
     try:
         while not ready:
@@ -138,17 +137,10 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
                 break
         rss_mb = _rss_mb(proc.pid)
     finally:
-        ex.shutdown(timeout_sec=1.0)
-        spinner.join(timeout=2.0)
+        spinner.stop()
         node.destroy_node()
         rclpy.try_shutdown()
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop(proc, signal.SIGINT, 10.0)
         log.close()
         os.unlink(log.name)
     L = np.array(lat) if lat else np.array([np.nan])
@@ -161,7 +153,7 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
             "skipped_stale": int(diag.get("frames_skipped_stale", -1)),
             "node_received": int(diag.get("frames_received", -1)),
             "node_ms_per_frame": float(diag.get("ms_per_frame", "nan")),
-            "node_rss_mb": rss_mb,
+            "node_rss_mb": rss_mb, "node_exit_code": proc.returncode,
             "domain_id": domain, "params": list(params or [])}
 
 
@@ -174,7 +166,8 @@ def main(argv: list | None = None) -> int:
                     help="of a built-in character")
     ap.add_argument("--weights", default="automatic", choices=("automatic", "file"))
     ap.add_argument("--bvh", default="", help="play this BVH, retargeted to the character")
-    ap.add_argument("--domain", type=int, default=None, help="ROS_DOMAIN_ID (default: from pid)")
+    ap.add_argument("--domain", type=int, default=None,
+                    help="ROS_DOMAIN_ID (default: a free one of $SKIN_NODE_DOMAINS, else 10-99)")
     ap.add_argument("--out", default="", help="write the result as JSON here")
     ap.add_argument("--param", action="append", default=[], metavar="NAME:=VALUE",
                     help="a node parameter, e.g. --param threads:=2 (repeatable)")
