@@ -97,7 +97,7 @@ PIPELINE_PARAMS = {
                                "elsewhere)", choices=WEIGHT_SCHEMES),
     "contact_margin": ParamSpec(float, 0.75, 0.0, 3.0, "gap each side of a fold keeps from the "
                                 "surface where the two parts meet, in mean edges"),
-    "contact_rounds": ParamSpec(int, 8, 0, 50, "projection and smoothing rounds of the contact "
+    "contact_rounds": ParamSpec(int, 4, 0, 50, "projection and smoothing rounds of the contact "
                                 "stage"),
     "contact_exact_every": ParamSpec(int, 2, 1, 50, "rounds between exact projections of the "
                                      "contact stage (tangent planes hold the skin between)"),

@@ -126,3 +126,19 @@ def region_incidence(F: np.ndarray, tris: np.ndarray, verts: np.ndarray):
     order = np.argsort(pos, kind="stable")
     ptr = np.searchsorted(pos[order], np.arange(len(verts) + 1)).astype(np.int64)
     return ptr, rows[order].astype(np.int64)
+
+
+@nb.njit(cache=True, nogil=True)
+def split_fade(out, jptr, jverts, jsplit, joint_fade):
+    """``out[i] = max_j jsplit * joint_fade[j]`` over the joints ``j`` with
+    ``joint_fade[j] > 0`` whose split skin (``jverts[jptr[j]:jptr[j+1]]``,
+    CSR, with ``jsplit`` alongside) holds ``i``; ``out`` must be 0 there."""
+    for j in range(joint_fade.shape[0]):
+        f = joint_fade[j]
+        if f <= 0.0:
+            continue
+        for k in range(jptr[j], jptr[j + 1]):
+            i = jverts[k]
+            x = jsplit[k] * f
+            if x > out[i]:
+                out[i] = x

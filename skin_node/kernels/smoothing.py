@@ -81,3 +81,27 @@ def vertex_faces(F: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     vf = (order // 3).astype(np.int64)
     vf_ptr = np.searchsorted(flat[order], np.arange(n + 1)).astype(np.int64)
     return vf_ptr, vf
+
+
+def adjacency_weights(V: np.ndarray, ptr: np.ndarray, adj: np.ndarray) -> np.ndarray:
+    """``1 / |edge|`` at rest for every entry of the one-ring CSR ``ptr``/``adj``
+    (what :func:`~skin_node.kernels.solver.edge_weights` gives a layout), once
+    per character: :func:`gather_weights` then reads a layout's from it."""
+    rows = np.repeat(np.arange(len(ptr) - 1), np.diff(ptr))
+    d = np.linalg.norm(V[rows] - V[adj], axis=1)
+    if not len(d):
+        return d
+    return 1.0 / np.maximum(d, 1e-9 * max(float(d.mean()), 1e-30))
+
+
+@nb.njit(cache=True, nogil=True)
+def gather_weights(verts, ptr, w, lptr):
+    """The weights of a :func:`~skin_node.kernels.solver.ring_layout` of
+    ``verts`` (its ``lptr``) from the per-character :func:`adjacency_weights`."""
+    out = np.empty(lptr[-1])
+    for k in range(verts.shape[0]):
+        i = verts[k]
+        o = lptr[k]
+        for b in range(ptr[i], ptr[i + 1]):
+            out[o + b - ptr[i]] = w[b]
+    return out

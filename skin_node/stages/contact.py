@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels.contact import contact_pairs, hold_planes, project_contacts
-from ..kernels.solver import edge_weights, laplacian_smooth, ring_layout
+from ..kernels.smoothing import adjacency_weights, gather_weights
+from ..kernels.solver import laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from .base import Frame, Stage
 from .skinning import matrices_to_dual_quaternions
@@ -63,6 +64,7 @@ class Contact(Stage):
         self._edge = esum / np.maximum(ecount, 1)           # mean edge at each vertex
         self._edge_max = float(self._edge.max())
         self._ptr, self._adj = r.adj_ptr, r.adj
+        self._w_adj = adjacency_weights(self.V0, self._ptr, self._adj)
         n = len(self.V0)
         self._hops = np.full(n, 1 << 30, dtype=np.int64)
         self._queue = np.empty(n, dtype=np.int64)
@@ -117,7 +119,7 @@ class Contact(Stage):
         zone = np.sort(self._queue[:reached])
         self._hops[zone] = 1 << 30
         ring, loc, lptr, lnbr = ring_layout(zone, self._ptr, self._adj)
-        lw = edge_weights(self.V0, ring, loc, lptr, lnbr)
+        lw = gather_weights(zone, self._ptr, self._w_adj, lptr)
         L, buf = np.empty((len(ring), 3)), np.empty((len(zone), 3))
         near = np.intersect1d(zone, verts, assume_unique=True)
         exact = max(1, int(self.params["contact_exact_every"]))

@@ -3,8 +3,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels.smoothing import restore_detail, vertex_faces
-from ..kernels.solver import edge_weights, laplacian_smooth, ring_layout
+from ..kernels.smoothing import (adjacency_weights, gather_weights, restore_detail,
+                                 vertex_faces)
+from ..kernels.solver import laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from .base import Frame, Stage
 from ..rigging.weights import point_segment_distance
@@ -42,6 +43,7 @@ class Mush(Stage):
         self.F = np.ascontiguousarray(character.F, dtype=np.int64)
         n = len(self.V0)
         self._ptr, self._adj = r.adj_ptr, r.adj
+        self._w_adj = adjacency_weights(self.V0, self._ptr, self._adj)
         self._vf_ptr, self._vf = vertex_faces(self.F, n)
         # a neighbour of every vertex, the tangent's direction (a closed
         # surface has one for each; an isolated vertex points at itself)
@@ -75,7 +77,7 @@ class Mush(Stage):
         zone = np.sort(self._queue[:reached])
         self._hops[zone] = 1 << 30
         ring, loc, lptr, lnbr = ring_layout(zone, self._ptr, self._adj)
-        lw = edge_weights(self.V0, ring, loc, lptr, lnbr)
+        lw = gather_weights(zone, self._ptr, self._w_adj, lptr)
         X, SX, SV = fr.surface, self._SX, self._SV
         SX[ring] = X[ring]
         SV[ring] = self.V0[ring]

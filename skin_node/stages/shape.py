@@ -5,11 +5,19 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels.shape import (cone_volume_gradient, enclosed_volume, limit_bulge,
-                             region_incidence)
+                             region_incidence, split_fade)
 from ..kernels.solver import edge_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from ..rigging.weights import point_segment_distance, segment_distance
 from .base import Frame, KeyedCache, Stage
+
+
+def _csr(verts: list, values: list):
+    """Per-joint vertex lists and values as one CSR: (ptr, verts, values)."""
+    ptr = np.zeros(len(verts) + 1, dtype=np.int64)
+    ptr[1:] = np.cumsum([len(v) for v in verts])
+    cat = lambda xs, dt: (np.concatenate(xs).astype(dt) if len(xs) else np.zeros(0, dt))  # noqa: E731
+    return ptr, cat(verts, np.int64), cat(values, np.float64)
 
 
 class Bulge(Stage):
@@ -58,6 +66,7 @@ class Bulge(Stage):
         self.jverts = [np.flatnonzero(split[:, j] > 0.01).astype(np.int64)
                        for j in range(skel.n_joints)]
         self.jsplit = [np.minimum(1.0, split[v, j] / 0.05) for j, v in enumerate(self.jverts)]
+        self._jcsr = _csr(self.jverts, self.jsplit)
         self._fade = np.zeros(len(V))
         self._V, self._ptr, self._adj = V, r.adj_ptr, r.adj
         self._sets = KeyedCache()
@@ -84,9 +93,7 @@ class Bulge(Stage):
             self._width = (limit, np.maximum(limit * self.r0[:, 0], 1e-6))
         fade = self._fade
         fade[verts] = 0.0
-        for j in np.flatnonzero(bent):
-            v = self.jverts[j]
-            fade[v] = np.maximum(fade[v], self.jsplit[j] * fr.fade[j])
+        split_fade(fade, *self._jcsr, fr.fade)
         X = fr.surface
         X0 = X[ring].copy()
         n = limit_bulge(X, verts, self.seg, self.r0, self.share, fr.seg_A, fr.seg_B,
@@ -165,6 +172,7 @@ class Inflate(Stage):
             v = np.flatnonzero(sp > 0.01).astype(np.int64)
             self.jverts.append(v)
             self.jsplit.append(np.minimum(1.0, sp[v] / 0.36))
+        self._jcsr = _csr(self.jverts, self.jsplit)
         self.mesh_vol0 = float(enclosed_volume(V, F))
         # each vertex's nearest bone segment and its distance at rest: skin
         # is not swollen past the bulge limit's envelope around it
@@ -204,10 +212,12 @@ class Inflate(Stage):
             # four steps within the bulge limit's envelope, then (if the region
             # is still short: skin in contact all round, a coarse mesh) four
             # past it: a joint keeps its volume before it keeps its outline
+            stale = True
             for it in range(8):
                 vol = cone_volume_gradient(X, self.F, t, c, *self.inc[j], v, g)
+                stale = False
                 deficit = self.vol0[j] - vol
-                if abs(deficit) <= 1e-3 * abs(self.vol0[j]):
+                if abs(deficit) <= 2e-3 * abs(self.vol0[j]):
                     break
                 # skin in contact may sink into its own flesh, not swell into
                 # the other's: it takes part in giving volume back, not in taking it
@@ -230,7 +240,9 @@ class Inflate(Stage):
                 if room is not None:
                     step = np.minimum(step, room)
                 X[v] += step[:, None] * (g / np.maximum(a, 1e-30)[:, None])
-            vol = cone_volume_gradient(X, self.F, t, c, *self.inc[j], v, g)
+                stale = True
+            if stale:
+                vol = cone_volume_gradient(X, self.F, t, c, *self.inc[j], v, g)
             worst = min(worst, vol / self.vol0[j])
         fr.counts["region_volume_min"] = worst
 
@@ -277,9 +289,7 @@ class Inflate(Stage):
             return
         X0 = X[ring].copy()
         m = np.zeros(len(X))
-        for j in np.flatnonzero(fr.bent):
-            u = self.jverts[j]
-            m[u] = np.maximum(m[u], self.jsplit[j] * fr.fade[j])
+        split_fade(m, *self._jcsr, fr.fade * fr.bent)
         m = m[v] * free[v]
         g = np.empty((len(v), 3))
         lim = float(self.params["inflate_max"]) * self.radius.max()
