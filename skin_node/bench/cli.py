@@ -245,7 +245,8 @@ def against_dqs(runs: list, method: str = "default") -> list:
             "folds90": (r.get("folds90_max"), d.get("folds90_max")),
             "roughness_ratio": r.get("surface_roughness_max", np.nan)
             / d.get("surface_roughness_max", np.nan),
-            "bulge_ratio": r["bulge_mm"] / d["bulge_mm"] if d["bulge_mm"] > 0 else np.nan,
+            # a ratio to no bulge (a twist: DQS leaves the radius alone) says nothing
+            "bulge_ratio": r["bulge_mm"] / d["bulge_mm"] if d["bulge_mm"] > 0.5 else np.nan,
             "region": r["region_volume_ratio_deepest"],
             "region_error_max": r["region_volume_error_max"],
             "volume_min": r["volume_ratio_min"]})
