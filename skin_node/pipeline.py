@@ -9,8 +9,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from .skeleton import forward_kinematics
 from .stages.base import Frame, Stage
+from .kernels.pose import pose_frame
 from .rigging.build import WEIGHT_SCHEMES
 from .stages.collision import Collision
 from .stages.contact import Contact
@@ -220,25 +220,6 @@ def default_params() -> dict:
             for k, s in PIPELINE_PARAMS.items()}
 
 
-@numba.njit(cache=True, nogil=True)
-def _pose_frame(q, parents, offsets, rest_rotations, bind_inv, threshold, band, seg_joint,
-                segA, segB, G, M, angles, fade, A, B):
-    """What a frame needs of the pose alone, in one call (a dozen small numpy
-    calls cost a quarter of a millisecond between the big kernels): forward
-    kinematics, each joint's fade (0 below ``threshold``, rising to 1 over
-    ``band`` radians; 0 for roots) and the posed bone segments."""
-    forward_kinematics(q, parents, offsets, rest_rotations, bind_inv, G, M, angles)
-    for j in range(parents.shape[0]):
-        fade[j] = 0.0 if parents[j] < 0 else min(1.0, max(0.0, (angles[j] - threshold) / band))
-    for s in range(seg_joint.shape[0]):
-        j = seg_joint[s]
-        for r in range(3):
-            A[s, r] = (M[j, r, 0] * segA[s, 0] + M[j, r, 1] * segA[s, 1]
-                       + M[j, r, 2] * segA[s, 2] + M[j, r, 3])
-            B[s, r] = (M[j, r, 0] * segB[s, 0] + M[j, r, 1] * segB[s, 1]
-                       + M[j, r, 2] * segB[s, 2] + M[j, r, 3])
-
-
 class Pipeline:
     """Stages built from names, run in order on every pose.
 
@@ -317,9 +298,9 @@ class Pipeline:
         J = skel.n_joints
         G, M, angles, fade = np.empty((J, 4, 4)), np.empty((J, 4, 4)), np.empty(J), np.empty(J)
         A, B = np.empty_like(self._segA), np.empty_like(self._segB)
-        _pose_frame(q, self._parents, skel.offsets, skel.rest_rotations, skel.bind_inv,
-                    float(self.params["active_threshold"]), float(self.params["active_fade"]),
-                    self._seg_joint, self._segA, self._segB, G, M, angles, fade, A, B)
+        pose_frame(q, self._parents, skel.offsets, skel.rest_rotations, skel.bind_inv,
+                   float(self.params["active_threshold"]), float(self.params["active_fade"]),
+                   self._seg_joint, self._segA, self._segB, G, M, angles, fade, A, B)
         bent = fade > 0.0
         s, t, sb, tb = self._buf
         return Frame(q=q, G=G, M=M, bent=bent, fade=fade, angles=angles, surface=s, tet=t,

@@ -7,7 +7,7 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 
-from .solver import FAST
+from . import FAST
 
 
 @nb.njit(cache=True, nogil=True)

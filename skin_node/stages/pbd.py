@@ -6,6 +6,7 @@ import numpy as np
 
 from ..kernels import solver
 from ..kernels.constraints import zone_volume_constraint
+from ..kernels.skinning import embed_update
 from .base import Frame, KeyedCache, Stage
 
 STRETCH, VOLUME, ENERGY, BIND = solver.STRETCH, solver.VOLUME, solver.ENERGY, solver.BIND
@@ -278,7 +279,7 @@ class PBD(Stage):
         if p["active_regions"] and np.any((f > 0) & (f < 1)):
             # Joints still in their fade band pass on only part of the correction.
             _fade(X, fr.tet_base, verts, vzone, f[fr.bent])
-        solver.embed_update(fr.surface_base, X, fr.tet_base, r.Etet, r.Ebary, sverts, fr.surface)
+        embed_update(fr.surface_base, X, fr.tet_base, r.Etet, r.Ebary, sverts, fr.surface)
 
 
 @nb.njit(cache=True, nogil=True)
