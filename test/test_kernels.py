@@ -718,7 +718,7 @@ def test_laplacian_smooth_is_jacobi_on_the_chosen_vertices_only(relative):
     """On an icosphere: ``p <- (1-k) p + k mean(one ring)`` for the chosen
     vertices, all from the last pass's values, of positions or of ``X - base``;
     every other vertex keeps its place."""
-    from skin_node.kernels.solver import laplacian_smooth, ring_layout
+    from skin_node.kernels.smoothing import laplacian_smooth, ring_layout
     m = trimesh.creation.icosphere(subdivisions=3)
     rng = np.random.default_rng(4)
     base = np.array(m.vertices)

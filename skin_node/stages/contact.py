@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels.contact import contact_pairs, hold_planes, project_contacts
-from ..kernels.solver import edge_weights, laplacian_smooth, ring_layout
+from ..kernels.smoothing import edge_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from .base import Frame, Stage
 from ..kernels.skinning import matrices_to_dual_quaternions

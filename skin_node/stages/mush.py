@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels.smoothing import restore_detail, vertex_faces
-from ..kernels.solver import edge_weights, laplacian_smooth, ring_layout
+from ..kernels.smoothing import edge_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from .base import Frame, Stage
 from ..rigging.weights import point_segment_distance

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels.solver import laplacian_smooth, ring_layout
+from ..kernels.smoothing import laplacian_smooth, ring_layout
 from .base import Frame, KeyedCache, Stage
 
 _EVEN = np.empty(0)        # an even mean of the one ring (the paper's)
