@@ -11,11 +11,12 @@ import numpy as np
 
 from .stages.base import Frame, Stage
 from .kernels.pose import pose_frame
+from .kernels.solver import CONSTRAINTS
 from .rigging.build import WEIGHT_SCHEMES
 from .stages.collision import Collision
 from .stages.contact import Contact
 from .stages.mush import Mush
-from .stages.pbd import CONSTRAINTS, PBD
+from .stages.pbd import PBD
 from .stages.shape import Bulge, Inflate
 from .stages.skinning import DQS, LBS
 from .stages.smooth import Smooth

@@ -10,8 +10,8 @@ import trimesh
 
 from skin_node.kernels.constraints import (bind_constraint, contact_constraint,
                                            energy_constraint, energy_value,
-                                           stretch_constraint, tet_volume, volume_constraint,
-                                           zone_volume_constraint)
+                                           stretch_constraint, tet_volume, volume_constraint)
+from skin_node.kernels.solver import zone_volume_sweep as zone_volume_constraint
 from skin_node.rigging.tetra import lattice_tets, signed_volumes
 
 SCALE = 0.02          # tet edge length, metres (the arm rig's order of size)

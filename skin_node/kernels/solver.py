@@ -13,9 +13,15 @@ import numpy as np
 
 from . import FAST
 from .constraints import (bind_constraint, contact_constraint, energy_step,
-                          stretch_constraint, volume_constraint)
+                          stretch_constraint, volume_constraint, zone_volume_constraint)
 
-STRETCH, VOLUME, ENERGY, BIND = 0, 1, 2, 3
+#: The constraint kinds of the solve, by their names in the ``constraints``
+#: parameter: :func:`sweep` applies the first four over index arrays,
+#: :func:`contact_sweep` the contact planes, :func:`zone_volume_sweep` a zone's
+#: total volume.
+STRETCH, VOLUME, ENERGY, BIND, CONTACT, ZONE = range(6)
+CONSTRAINTS = {"stretch": STRETCH, "volume": VOLUME, "energy": ENERGY, "bind": BIND,
+               "contact": CONTACT, "zone_volume": ZONE}
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -95,6 +101,24 @@ def contact_sweep(X, w, idx, planes, plane_of):
             X[i, d] += dp[0, d]
 
 
+@nb.njit(cache=True, nogil=True)
+def zone_volume_sweep(X, T, tets, verts, w, rest, k, g):
+    """One projection of :func:`~skin_node.kernels.constraints.zone_volume_constraint`
+    over the tets ``tets`` (their vertices ``verts``, each once):
+    ``X_i += w_i dlam g_i``. ``g`` (k,3) is scratch and keeps the gradient.
+    Returns ``C`` before the projection."""
+    dlam, C = zone_volume_constraint(X, T, tets, verts, w, rest, k, g)
+    if dlam == 0.0:
+        return C
+    for a in range(verts.shape[0]):
+        i = verts[a]
+        f = w[i] * dlam
+        X[i, 0] += f * g[i, 0]
+        X[i, 1] += f * g[i, 1]
+        X[i, 2] += f * g[i, 2]
+    return C
+
+
 @nb.njit(cache=True, nogil=True, inline="always")
 def _range(kind, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, lo, hi, k, alpha, dp):
     if kind == STRETCH:
@@ -171,3 +195,43 @@ def sweep(kind: int, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds
         _bind_seq(X, w, seg, A, B, rest, lam, idx, k, alpha)
     else:
         _stretch_seq(X, w, E, rest, lam, idx, k, alpha)
+
+
+@nb.njit(cache=True, nogil=True)
+def carry_correction(X, verts, M, dom, corr, apply):
+    """Warm start. ``apply``: ``X_i += R_i corr_i``; else ``corr_i = R_i^T X_i``
+    (``X`` then holding the correction), with ``R_i`` the rotation of vertex i's
+    main bone, so a correction rides with its limb from frame to frame."""
+    for a in range(verts.shape[0]):
+        i = verts[a]
+        R = M[dom[i]]
+        if apply:
+            for r in range(3):
+                X[i, r] += R[r, 0] * corr[i, 0] + R[r, 1] * corr[i, 1] + R[r, 2] * corr[i, 2]
+        else:
+            for c in range(3):
+                corr[i, c] = R[0, c] * X[i, 0] + R[1, c] * X[i, 1] + R[2, c] * X[i, 2]
+
+
+@nb.njit(cache=True, nogil=True)
+def max_move(X, prev, idx):
+    m = 0.0
+    for a in range(idx.shape[0]):
+        i = idx[a]
+        d = (X[i, 0] - prev[i, 0]) ** 2 + (X[i, 1] - prev[i, 1]) ** 2 + (X[i, 2] - prev[i, 2]) ** 2
+        m = max(m, d)
+    return np.sqrt(m)
+
+
+@nb.njit(cache=True, nogil=True)
+def fade_correction(X, base, verts, vzone, fade):
+    """``X_i = base_i + z_i (X_i - base_i)`` for ``i`` in ``verts``, ``z_i`` the
+    largest ``vzone[a, j] * fade[j]`` over the bent joints ``j`` (row ``a`` of
+    ``vzone`` is vertex ``verts[a]``'s zone membership)."""
+    for a in range(verts.shape[0]):
+        z = vzone[a, 0] * fade[0]
+        for j in range(1, fade.shape[0]):
+            z = max(z, vzone[a, j] * fade[j])
+        i = verts[a]
+        for d in range(3):
+            X[i, d] = base[i, d] + z * (X[i, d] - base[i, d])
