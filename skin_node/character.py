@@ -3,12 +3,13 @@ from __future__ import annotations
 
 import hashlib
 import inspect
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from .rigging.build import Rig, RigOptions, Steps, cache_dir, cached_rig
+from .rigging.regions import JointRegions
 from .skeleton import Skeleton
 
 #: Default tet counts: the paper's human has 51,110 tets; the arm prototype 12k.
@@ -38,6 +39,15 @@ class Character:
     skeleton: Skeleton
     rig: Rig
     options: RigOptions
+    _regions: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+
+    def regions(self, scheme: str = "character") -> JointRegions:
+        """The :class:`~skin_node.rigging.regions.JointRegions` of the weighting
+        ``scheme`` (:data:`~skin_node.rigging.build.WEIGHT_SCHEMES`), built on
+        first use and shared by every pipeline and stage of this character."""
+        if scheme not in self._regions:
+            self._regions[scheme] = JointRegions(self, self.rig.weights(scheme))
+        return self._regions[scheme]
 
     @property
     def channel_names(self) -> list:

@@ -134,7 +134,7 @@ def test_spot_joints_inside_symmetric_and_legs_in_legs(spot):
 
 def test_spot_walks_without_crossings():
     from skin_node.pipeline import Pipeline
-    from skin_node.stages.collision import JointRegions, count_crossings
+    from skin_node.rigging.regions import JointRegions, count_crossings
     ch = load_embedded(_need(SPOT), "quadruped", tet_count=6000, progress=False)
     frames = quadruped_walk(ch.skeleton)
     assert frames.shape == (240, ch.n_channels)

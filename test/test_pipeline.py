@@ -10,7 +10,7 @@ import pytest
 
 from skin_node import DEFAULT_STAGES, Pipeline, load_character
 from skin_node.metrics import mesh_volume, roughness
-from skin_node.stages.collision import JointRegions, count_crossings
+from skin_node.rigging.regions import JointRegions, count_crossings
 
 #: The tet solve with the paper's collision stage (extended) and the joint
 #: volume stage after it: the stages these tests check, as a pipeline, on the

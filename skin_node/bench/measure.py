@@ -27,7 +27,7 @@ Timing
     bulge. Skin pressed flat where two limbs touch also reads as negative.
 ``crossings``
     Joint-region vertices that have passed through the skin
-    (:func:`skin_node.stages.collision.count_crossings`).
+    (:func:`skin_node.rigging.regions.count_crossings`).
 ``intersections`` / ``crumples`` / ``pairs``
     Pairs of triangles of the whole surface that pass through each other,
     found exactly (:class:`skin_node.kernels.intersect.SelfIntersections`),
@@ -79,7 +79,7 @@ from .. import default_clip_name, load_character, make_clip
 from ..kernels.intersect import SelfIntersections
 from ..metrics import SurfaceQuality, mesh_volume, region_volume, weight_jumps
 from ..pipeline import PRESETS, STAGE_NAMES, Pipeline
-from ..stages.collision import JointRegions, count_crossings
+from ..rigging.regions import RegionSearch, count_crossings
 from ..rigging.weights import segment_distance
 
 #: Skinning-only stages: iterations, tets and active_threshold do not change their result.
@@ -326,7 +326,8 @@ class SceneMetrics:
         skel, r = ch.skeleton, ch.rig
         self.F = ch.F
         self.V0 = mesh_volume(ch.V, ch.F)
-        self.regions = JointRegions(ch)
+        self.regions = ch.regions()
+        self.search = RegionSearch(self.regions)
         self.intersections = SelfIntersections(ch.V, ch.F, 3.0 * self.regions.edge)
         self.surface = SurfaceQuality(ch.V, ch.F)
         # joint-region volumes at rest, about each joint's rest position
@@ -382,8 +383,8 @@ class SceneMetrics:
             j = int(self.region_joints[np.argmax(frame.angles[self.region_joints])])
             out["region_joint"] = self.character.skeleton.names[j]
             out["region_volume_ratio"] = self.region_ratio(V, frame.G, j)
-        out["crossings"] = (count_crossings(V, self.character.V, self.F, frame.M, self.regions)
-                            if crossings else np.nan)
+        out["crossings"] = (count_crossings(V, self.character.V, self.F, frame.M, self.regions,
+                                            search=self.search) if crossings else np.nan)
         out["intersections"], out["crumples"] = (self.intersections(V) if crossings
                                                  else (np.nan, np.nan))
         out["pairs"] = out["intersections"] + out["crumples"]

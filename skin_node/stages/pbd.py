@@ -7,6 +7,7 @@ from ..kernels.skinning import embed_update
 from ..kernels.solver import (BIND, CONSTRAINTS, CONTACT, ENERGY, STRETCH, VOLUME, ZONE,
                               carry_correction, contact_sweep, fade_correction, max_move, sweep,
                               zone_volume_sweep)
+from ..rigging.weights import point_segment_distance
 from .base import Frame, KeyedCache, Stage
 
 
@@ -68,37 +69,14 @@ class PBD(Stage):
         self._key = None
         self._sets, self._zsets, self._slabs = KeyedCache(), KeyedCache(), KeyedCache(4)
         self._g = np.zeros((len(r.TV), 3))
+        self._regions = regions = character.regions(params["weight_scheme"])
         # Warm start: last frame's correction in the frame of each vertex's main bone.
-        w = self.weights
-        self._dom = w.TWidx[np.arange(len(r.TV)), np.argmax(w.TWval, axis=1)]
+        self._dom = regions.tdom
         self._corr = np.zeros((len(r.TV), 3))
         self._dX = None
-        self._contact_setup(character)
-
-    def _contact_setup(self, character) -> None:
-        """Per joint: its zone's tet vertices, their side (child +1 / parent -1)
-        and each side's flesh radius around its bone."""
-        from ..rigging.weights import point_segment_distance
-        from .collision import JointRegions
-        skel, r = character.skeleton, self.rig
-        J = skel.n_joints
-        below = skel.subtree()          # below[j, b]: b is j or under j
-        w = self.weights
-        dom = w.TWidx[np.arange(len(r.TV)), np.argmax(w.TWval, axis=1)]
-        self._regions = JointRegions(character, w)
-        self.cverts, self.cside = [], []
-        self.cR = np.zeros((J, 2))
-        for j in range(J):
-            v = np.flatnonzero(w.zone[:, j]) if skel.parents[j] >= 0 else np.zeros(0, np.int64)
-            side = below[j, dom[v]]
-            self.cverts.append(v)
-            self.cside.append(np.where(side, 1.0, -1.0))
-            if len(v):
-                A, B = self._regions.rest_segments(j)
-                for s_ in (0, 1):
-                    pts = r.TV[v[side == bool(s_)]]
-                    d = point_segment_distance(pts, A[s_:s_ + 1], B[s_:s_ + 1])
-                    self.cR[j, s_] = d.max() if d.size else 0.0
+        # Contact planes: per joint, its zone's tet vertices, their side (child +1 /
+        # parent -1) and each side's flesh radius around its bone.
+        self.cverts, self.cside, self.cR = regions.tet_sides
 
     def _zones(self, bent: np.ndarray):
         """(tets, vertices, rest volume) of each bent joint's zone, cached."""
@@ -133,7 +111,6 @@ class PBD(Stage):
             n /= nn
             side = self.cside[j]
             X = fr.tet[v]
-            from ..rigging.weights import point_segment_distance
             near = np.zeros(len(v), dtype=bool)
             for s_ in (0, 1):           # vertices of side s_ near the other bone
                 m = side == (1.0 if s_ else -1.0)

@@ -37,9 +37,9 @@ import numpy as np
 
 from ..kernels.topology import ring_distance
 from ..kernels.volume import restore_region, swell_checked, volume_and_gradient, zone_mobility
-from ..metrics import mesh_volume, region_volume
+from ..metrics import mesh_volume
+from ..rigging.regions import RegionSearch
 from .base import Frame, KeyedCache, Stage
-from .collision import JointRegions
 
 
 class Volume(Stage):
@@ -50,51 +50,20 @@ class Volume(Stage):
 
     def __init__(self, character, params):
         super().__init__(character, params)
-        skel, r = character.skeleton, character.rig
-        J = skel.n_joints
-        below = skel.subtree()          # below[j, b]: b is j or under j
-        # mobility[:, j]: 4 s (1 - s) with s the weight a vertex takes from below j.
-        self.mobility = np.zeros((len(character.V), J))
-        self.zone, self.side = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
-        for j in range(1, J):
-            s = (self.weights.Wval * below[j][self.weights.Widx]).sum(1)
-            self.mobility[:, j] = 4.0 * s * (1.0 - s)
-            z = np.flatnonzero(self.mobility[:, j] > 0.02)
-            self.zone.append(z)
-            self.side.append((s[z] > 0.5).astype(np.int64))
+        r = character.rig
         self.F = character.F
         self._region = r.region
         self._threshold = r.threshold
         self.V0 = mesh_volume(character.V, character.F)
-        self.regions = regs = JointRegions(character, self.weights)
-        # Per joint region: its vertices that may move (the zone's), their side and
-        # mobility, and the region's rest volume about the joint. The mobility falls
-        # smoothly to 0 towards the region's border (over a third of the limb
-        # radius), where the skin outside it stays put: no step at the border.
-        from scipy.spatial import cKDTree
-        self.rverts, self.rside, self.rmob = [], [], []
-        self.rvol0 = np.zeros(J)
-        for j in range(J):
-            t = regs.tris[j]
-            v = np.unique(self.F[t]) if len(t) and j > 0 else np.zeros(0, np.int64)
-            keep = (np.isin(v, self.zone[j]) & (r.region[v] == j)) if j > 0 else np.zeros(0, bool)
-            v = v[keep]
-            mob = self.mobility[v, j] if j > 0 else np.zeros(0)
-            outside = np.unique(self.F[t])
-            outside = outside[r.region[outside] != j] if len(t) else outside
-            if len(v) and len(outside):
-                d, _ = cKDTree(character.V[outside]).query(character.V[v])
-                x = np.clip(d / max(r.radius[j] / 3.0, 1e-9), 0.0, 1.0)
-                mob = mob * x * x * (3.0 - 2.0 * x)
-            self.rverts.append(v.astype(np.int64))
-            self.rmob.append(mob)
-            self.rside.append(self.side[j][np.searchsorted(self.zone[j], v)] if j > 0
-                              else np.zeros(0, np.int64))
-            if len(t):
-                self.rvol0[j] = region_volume(character.V, self.F, t, skel.rest_positions[j])
+        self.regions = regs = character.regions(params["weight_scheme"])
+        self.search = RegionSearch(regs)
+        # Per joint: the zone's vertices, their side and mobility; per joint region:
+        # its vertices that may move, their side and mobility, its rest volume.
+        sw = regs.swell
+        self.mobility, self.zone, self.side = sw.mobility, sw.zone, sw.side
+        self.rverts, self.rside, self.rmob, self.rvol0 = sw.verts, sw.vside, sw.mob, sw.vol0
         # skin in contact keeps still over half the joint's limb radius (in rings)
-        e = np.linalg.norm(character.V[self.F[:, 0]] - character.V[self.F[:, 1]], axis=1)
-        self._ring_edge = max(float(np.median(e)), 1e-9)
+        self._ring_edge = max(regs.edge, 1e-9)
         self._ring_width = np.maximum(0.5 * r.radius / self._ring_edge, 1.0)
         self._hop_limit = int(min(np.ceil(self._ring_width.max()) + 1, 64))
         self._hops = np.full(len(character.V), self._hop_limit, dtype=np.int64)
@@ -104,10 +73,7 @@ class Volume(Stage):
         self._none, self._gnone = np.zeros(0, np.int64), np.zeros((0, 3))
         self._m = np.zeros(len(character.V))
         # vertex -> incident faces, CSR
-        F = character.F
-        order = np.argsort(F.ravel(), kind="stable")
-        self.inc = (order // 3).astype(np.int64)
-        self.inc_ptr = np.searchsorted(F.ravel()[order], np.arange(len(character.V) + 1))
+        self.inc_ptr, self.inc = regs.faces_around
         self._entries, self._fold = KeyedCache(), KeyedCache(64)
 
     def __call__(self, fr: Frame) -> None:
@@ -190,7 +156,7 @@ class Volume(Stage):
         most any skin moves (``args``' own). Returns the region's volume ratio."""
         regs = self.regions
         posed = regs.posed_segments(j, fr.M, fr.memo)
-        tree, fit, refit, hint = regs.search_state(j, fr.surface, posed)
+        tree, fit, refit, hint = self.search.state(j, fr.surface, posed)
         return swell_checked(*args, ratio, m_guarded, self.character.V,
                              np.ascontiguousarray(fr.M), regs.tri_bone, regs.tri_normal, tree,
                              fit, refit, regs.verts[j], regs.vside[j], posed[0], posed[1],
