@@ -5,6 +5,7 @@ normals, and the region swell that keeps only the moves that cross no skin
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
@@ -111,16 +112,43 @@ def move_along_normals(X, verts, m, g, C, budget):
     return lam, lam * den
 
 
+class RegionSwell(NamedTuple):
+    """One joint region's volume constraint, as :func:`restore_region` and
+    :func:`swell_checked` read it."""
+
+    F: np.ndarray           # (m, 3) the surface's triangles
+    tris: np.ndarray        # the region's triangles
+    c: np.ndarray           # (3,) the posed joint centre, the cones' apex
+    verts: np.ndarray       # the region's vertices that may move
+    mob: np.ndarray         # their mobility
+    side: np.ndarray        # their side
+    fade: float             # the joint's fade
+    A: np.ndarray           # (2, 3) starts of the posed bones (parent side's, child side's)
+    B: np.ndarray           # (2, 3) their ends
+    R: np.ndarray           # (2,) each side's flesh radius about its bone
+    hops: np.ndarray        # (n,) rings from skin in contact, per surface vertex
+    ring_width: float       # rings over which skin next to a contact comes free
+    vol0: float             # the region's rest volume
+    max_move: float         # the most any vertex moves
+    g: np.ndarray           # (n, 3) scratch: the volume's gradient
+    m: np.ndarray           # (>= len(verts),) scratch: the mobilities applied
+    passes: int             # projections
+
+
 @nb.njit(cache=True, nogil=True)
-def restore_region(X, F, tris, c, verts, mob, side, fade, A, B, R, hops, ring_width, vol0,
-                   max_move, g, m, passes, guarded):
-    """Give joint region ``tris`` its rest volume ``vol0`` back (cone from the
-    posed joint centre ``c``), moving ``verts`` along their normals by at most
-    ``max_move``. Mobility: ``mob * fade``; with ``guarded``, times a ramp from 0
-    within the other side's flesh radius ``R`` of its bone (``A``-``B``) to 1 at
-    1.5 ``R``, times ``min(1, hops / ring_width)`` (rings from skin in contact).
-    Returns the region's volume ratio after the ``passes`` projections, to first
-    order."""
+def restore_region(X, swell, guarded):
+    """Give the joint region ``swell.tris`` (:class:`RegionSwell`) its rest
+    volume ``vol0`` back (cone from the posed joint centre ``c``), moving
+    ``verts`` along their normals by at most ``max_move``. Mobility: ``mob *
+    fade``; with ``guarded``, times a ramp from 0 within the other side's flesh
+    radius ``R`` of its bone (``A``-``B``) to 1 at 1.5 ``R``, times ``min(1,
+    hops / ring_width)`` (rings from skin in contact). Returns the region's
+    volume ratio after the ``passes`` projections, to first order."""
+    F, tris, c, verts, mob, side, fade = (swell.F, swell.tris, swell.c, swell.verts, swell.mob,
+                                          swell.side, swell.fade)
+    A, B, R, hops, ring_width, vol0 = (swell.A, swell.B, swell.R, swell.hops, swell.ring_width,
+                                       swell.vol0)
+    max_move, g, m, passes = swell.max_move, swell.g, swell.m, swell.passes
     mmax = 0.0
     for a in range(verts.shape[0]):
         i, o = verts[a], 1 - side[a]
@@ -144,14 +172,14 @@ def restore_region(X, F, tris, c, verts, mob, side, fade, A, B, R, hops, ring_wi
 
 
 @nb.njit(cache=True, nogil=True)
-def new_crossings(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, verts, vside, R,
-                  segA, segB, rest_sep, rest_tol, reach, hint, pos, nth, v, keep):
-    """Of ``pos`` (positions into ``verts``), those whose vertex crosses skin
-    now but did not with ``v`` at ``keep``, and the triangles they cross (-2:
-    none, deep in the other side's flesh). Both tests are :func:`crossed_at`'s,
-    the first fitting the tree afresh with ``refit``."""
-    hit = crossed_at(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, verts, vside, R,
-                     segA, segB, rest_sep, rest_tol, reach, hint, pos, nth)
+def new_crossings(X, test, fit, refit, hint, pos, nth, v, keep):
+    """Of ``pos`` (positions into the region's vertices ``test.verts``, a
+    :class:`~skin_node.kernels.collision.RegionTest`), those whose vertex
+    crosses skin now but did not with ``v`` at ``keep``, and the triangles they
+    cross (-2: none, deep in the other side's flesh). Both tests are
+    :func:`~skin_node.kernels.collision.crossed_at`'s, the first fitting the
+    tree afresh with ``refit``."""
+    hit = crossed_at(X, test, fit, refit, hint, pos, nth)
     now = np.flatnonzero(hit != -1)
     if now.shape[0] == 0:
         return pos[now], hit[now]
@@ -161,8 +189,7 @@ def new_crossings(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, ver
         for d in range(3):
             moved[a, d] = X[v[a], d]
             X[v[a], d] = keep[a, d]
-    before = crossed_at(X, X0, F, M, tri_bone, tri_normal, tree, fit, False, tris, verts, vside,
-                        R, segA, segB, rest_sep, rest_tol, reach, hint, pos[now], nth)
+    before = crossed_at(X, test, fit, False, hint, pos[now], nth)
     for a in range(v.shape[0]):
         for d in range(3):
             X[v[a], d] = moved[a, d]
@@ -171,24 +198,24 @@ def new_crossings(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, ver
 
 
 @nb.njit(cache=True, nogil=True)
-def swell_checked(X, F, tris, c, v, mob, side, fade, A, B, R, hops, ring_width, vol0, max_move,
-                  g, m, passes, ratio, m_guarded, X0, M, tri_bone, tri_normal, tree, fit, refit,
-                  verts, vside, segA, segB, rest_sep, rest_tol, cell, hint, edge, emax, nth):
-    """:meth:`Volume._checked`'s swell and check of one joint region: the
-    arguments of :func:`restore_region` (``tris`` the region's triangles,
-    ``v`` its mobile vertices, ``A``, ``B`` and ``R`` its posed bones and flesh
-    radii), the guarded ``ratio`` and mobilities ``m_guarded``, then those of
-    the crossing test (:func:`crossed_vertices` over ``verts``, the region's
-    vertices, ``segA``, ``segB`` the posed bones as the collision stage has
-    them; ``cell`` its reach, ``edge`` and ``emax`` the median and longest
-    rest edges). Returns the region's volume ratio."""
+def swell_checked(X, swell, ratio, m_guarded, test, fit, refit, hint, edge, emax, nth):
+    """:meth:`skin_node.stages.volume.Volume._checked`'s swell and check of one
+    joint region: :func:`restore_region` of ``swell`` unguarded, after the
+    guarded one gave ``ratio`` with the mobilities ``m_guarded``, then the
+    crossing test ``test`` (:class:`~skin_node.kernels.collision.RegionTest`
+    over the region's vertices; its ``reach`` the detection cell) with its
+    tree boxes ``fit``, ``refit`` and ``hint`` as in
+    :func:`~skin_node.kernels.collision.crossed_at`; ``edge`` and ``emax`` the
+    median and longest rest edges. Returns the region's volume ratio."""
+    F, tris, c, v, max_move = swell.F, swell.tris, swell.c, swell.verts, swell.max_move
+    g, m, vol0 = swell.g, swell.m, swell.vol0
+    verts, cell = test.verts, test.reach
     nv = v.shape[0]
     keep = np.empty((nv, 3))
     for a in range(nv):
         for d in range(3):
             keep[a, d] = X[v[a], d]
-    new = restore_region(X, F, tris, c, v, mob, side, fade, A, B, R, hops, ring_width, vol0,
-                         max_move, g, m, passes, False)
+    new = restore_region(X, swell, False)
     freed = np.flatnonzero(m[:nv] > m_guarded + 1e-9)
     if freed.shape[0] == 0:
         return new
@@ -200,9 +227,7 @@ def swell_checked(X, F, tris, c, v, mob, side, fade, A, B, R, hops, ring_width, 
             P[b, d] = X[v[freed[b]], d]
             P[freed.shape[0] + b, d] = keep[freed[b], d]
     sub = in_box(X, verts, np.arange(verts.shape[0]), P, retest)
-    bad, tri = new_crossings(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, verts,
-                             vside, R, segA, segB, rest_sep, rest_tol, cell, hint, sub, nth, v,
-                             keep)
+    bad, tri = new_crossings(X, test, fit, refit, hint, sub, nth, v, keep)
     every = np.arange(nv)
     for r in (1.5 * edge, 3.0 * edge, reach, reach, reach):
         if bad.shape[0] == 0:
@@ -235,9 +260,7 @@ def swell_checked(X, F, tris, c, v, mob, side, fade, A, B, R, hops, ring_width, 
                 P[back.shape[0] + b, d] = keep[back[b], d]
                 X[v[back[b]], d] = keep[back[b], d]
         near = in_box(X, verts, sub, P, retest)
-        bad, tri = new_crossings(X, X0, F, M, tri_bone, tri_normal, tree, fit, False, tris,
-                                 verts, vside, R, segA, segB, rest_sep, rest_tol, cell, hint,
-                                 near, nth, v, keep)
+        bad, tri = new_crossings(X, test, fit, False, hint, near, nth, v, keep)
     for a in range(nv):
         for d in range(3):
             X[v[a], d] = keep[a, d]

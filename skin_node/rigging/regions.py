@@ -21,7 +21,8 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..kernels.collision import crossed_at, longest_edge, resolve_region, tree_fit, triangle_trees
+from ..kernels.collision import (FoldPlan, RegionTest, crossed_at, longest_edge, resolve_region,
+                                 tree_fit, triangle_trees)
 from ..kernels.smoothing import vertex_faces
 from ..metrics import region_volume
 from .weights import point_segment_distance
@@ -179,6 +180,15 @@ class JointRegions:
             self._trees[j] = triangle_trees(self._V0, self._F, self.tris[j], self.tside[j])
         return self._trees[j]
 
+    def region_test(self, j: int, X0: np.ndarray, F: np.ndarray, M: np.ndarray,
+                    posed) -> RegionTest:
+        """Joint ``j``'s crossing test (:class:`RegionTest`) against the rest
+        surface ``X0, F`` in the pose of the skinning matrices ``M``, whose
+        :meth:`posed_segments` of ``j`` are ``posed``."""
+        return RegionTest(X0, F, np.ascontiguousarray(M), self.tri_bone, self.tri_normal,
+                          self.tree(j), self.tris[j], self.tside[j], self.verts[j], self.vside[j],
+                          self.R[j], posed[0], posed[1], *self.test_limits(j))
+
     def test_limits(self, j: int):
         """``rest_sep``, ``rest_tol`` and ``reach`` of joint ``j``'s crossing
         test (:func:`crossed_vertices`)."""
@@ -301,12 +311,10 @@ class RegionSearch:
         ``posed``: :meth:`JointRegions.posed_segments` of ``(j, M)`` with the
         frame's memo, if already at hand."""
         regs = self.regions
-        tree, fit, refit, hint = self.state(j, X, posed)
-        A, B = regs.posed_segments(j, M) if posed is None else posed
-        return crossed_at(X, X0, F, np.ascontiguousarray(M), regs.tri_bone, regs.tri_normal,
-                          tree, fit, refit, regs.tris[j], regs.verts[j], regs.vside[j],
-                          regs.R[j], A, B, *regs.test_limits(j), hint,
-                          regs.every[j] if sub is None else sub, numba.get_num_threads())
+        _, fit, refit, hint = self.state(j, X, posed)
+        test = regs.region_test(j, X0, F, M, regs.posed_segments(j, M) if posed is None else posed)
+        return crossed_at(X, test, fit, refit, hint, regs.every[j] if sub is None else sub,
+                          numba.get_num_threads())
 
     def resolve(self, X, X0, F, M, j: int, pos: np.ndarray, posed, ends, *, planar: bool,
                 paper: bool, upfront: bool, halfspace: bool, pushout: bool, passes: int,
@@ -314,14 +322,12 @@ class RegionSearch:
         """The collision stage's detect-and-resolve passes over joint ``j``'s
         vertices at positions ``pos`` (:func:`resolve_region`); ``posed`` as
         in :meth:`crossed` (the frame's), ``ends`` the joint and its bones' far
-        ends. Returns (the vertices moved, how many projected, how many pushed)."""
-        regs = self.regions
-        tree, fit, refit, hint = self.state(j, X, posed)
-        return resolve_region(
-            X, X0, F, np.ascontiguousarray(M), regs.tri_bone, regs.tri_normal, tree, fit, refit,
-            regs.tris[j], regs.tside[j], regs.verts[j], regs.vside[j], regs.R[j], posed[0],
-            posed[1], *regs.test_limits(j), hint, pos, passes, planar, paper, upfront,
-            halfspace, pushout, *ends, eps, numba.get_num_threads())
+        ends (:class:`FoldPlan` says what the others do). Returns (the vertices
+        moved, how many projected, how many pushed)."""
+        _, fit, refit, hint = self.state(j, X, posed)
+        return resolve_region(X, self.regions.region_test(j, X0, F, M, posed), fit, refit, hint,
+                              pos, FoldPlan(*ends, passes, planar, paper, upfront, halfspace,
+                                            pushout, eps), numba.get_num_threads())
 
 
 def count_crossings(X, X0, F, M, regions: JointRegions, joints=None,

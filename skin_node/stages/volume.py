@@ -36,7 +36,8 @@ import numba as nb
 import numpy as np
 
 from ..kernels.topology import ring_distance
-from ..kernels.volume import restore_region, swell_checked, volume_and_gradient, zone_mobility
+from ..kernels.volume import (RegionSwell, restore_region, swell_checked, volume_and_gradient,
+                              zone_mobility)
 from ..metrics import mesh_volume
 from ..rigging.regions import RegionSearch
 from .base import Frame, KeyedCache, Stage
@@ -124,19 +125,19 @@ class Volume(Stage):
             # degrees to nothing at 180.
             fold = min(1.0, max(0.0, (np.pi - fr.angles[j]) / (0.5 * np.pi)))
             max_move = cap * fold * regs.radius[j]
-            args = (X, self.F, regs.tris[j], fr.G[j, :3, 3], v, self.rmob[j], self.rside[j],
-                    fr.fade[j], A[j], B[j], regs.R[j], hops, self._ring_width[j],
-                    self.rvol0[j], max_move, self._g, self._m, 2)
-            ratio = restore_region(*args, True)
+            swell = RegionSwell(self.F, regs.tris[j], fr.G[j, :3, 3], v, self.rmob[j],
+                                self.rside[j], fr.fade[j], A[j], B[j], regs.R[j], hops,
+                                self._ring_width[j], self.rvol0[j], max_move, self._g, self._m, 2)
+            ratio = restore_region(X, swell, True)
             if ratio < 1.0 - checked and self.params["self_collision"]:
-                ratio = self._checked(fr, j, args, ratio, self._m[:len(v)].copy(), max_move)
+                ratio = self._checked(fr, j, swell, ratio, self._m[:len(v)].copy())
             worst = min(worst, ratio)
         if reached:
             hops[self._queue[:reached]] = self._hop_limit
         fr.counts["region_volume_min"] = worst
 
-    def _checked(self, fr: Frame, j: int, args, ratio: float, m_guarded,
-                 max_move: float) -> float:
+    def _checked(self, fr: Frame, j: int, swell: RegionSwell, ratio: float,
+                 m_guarded: np.ndarray) -> float:
         """Past the guards, where they leave region ``j`` short: skin within the
         other side's flesh radius, or next to a resolved contact, may as well
         swell away from that skin as into it. Move all of the region's mobile
@@ -152,16 +153,15 @@ class Volume(Stage):
         triangles after the move (a lowered arm stretches skin to several rest
         edges; no corner moved more than ``max_move``). The radius put back
         grows from a ring to the test's reach while crossings stay.
-        ``m_guarded``: the mobilities of the guarded pass; ``max_move``: the
-        most any skin moves (``args``' own). Returns the region's volume ratio."""
+        ``swell``: the region's constraint (its ``max_move`` the most any skin
+        moves); ``m_guarded``: the mobilities of the guarded pass. Returns the
+        region's volume ratio."""
         regs = self.regions
         posed = regs.posed_segments(j, fr.M, fr.memo)
-        tree, fit, refit, hint = self.search.state(j, fr.surface, posed)
-        return swell_checked(*args, ratio, m_guarded, self.character.V,
-                             np.ascontiguousarray(fr.M), regs.tri_bone, regs.tri_normal, tree,
-                             fit, refit, regs.verts[j], regs.vside[j], posed[0], posed[1],
-                             *regs.test_limits(j), hint, regs.edge, regs.emax,
-                             nb.get_num_threads())
+        _, fit, refit, hint = self.search.state(j, fr.surface, posed)
+        test = regs.region_test(j, self.character.V, self.F, fr.M, posed)
+        return swell_checked(fr.surface, swell, ratio, m_guarded, test, fit, refit, hint,
+                             regs.edge, regs.emax, nb.get_num_threads())
 
     def _whole(self, fr: Frame, js, posed, slack: float = 0.0) -> None:
         """One constraint on the whole mesh's volume, moving the bent joints' zones;
