@@ -80,7 +80,7 @@ from ..kernels.intersect import SelfIntersections
 from ..metrics import SurfaceQuality, mesh_volume, region_volume, weight_jumps
 from ..pipeline import PRESETS, STAGE_NAMES, Pipeline
 from ..rigging.regions import RegionSearch, count_crossings
-from ..rigging.weights import segment_distance
+from ..rigging.weights import point_segment_distance, segment_distance
 
 #: Skinning-only stages: iterations, tets and active_threshold do not change their result.
 SKIN_ONLY = {"lbs", "dqs"}
@@ -338,9 +338,7 @@ class SceneMetrics:
                             for j in self.region_joints}
         # radial-deviation proxy: nearest rest bone segment and rest distance
         seg_joint, A, B = skel.bone_segments()
-        D = np.stack([segment_distance(ch.V, np.broadcast_to(A[s], ch.V.shape),
-                                       np.broadcast_to(B[s], ch.V.shape))
-                      for s in range(len(A))], axis=1)
+        D = point_segment_distance(ch.V, A, B)
         self.seg = np.argmin(D, axis=1)
         self.r0 = D[np.arange(len(ch.V)), self.seg]
         # joint-region roughness, as metrics.roughness, with the index arrays built once
