@@ -74,6 +74,7 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+import psutil
 
 from .. import default_clip_name, load_character, make_clip
 from ..kernels.intersect import SelfIntersections
@@ -602,7 +603,6 @@ def memory_profile(scene="humanoid:24000", frames: int = 3000, every: int = 250,
     Returns start (after imports), after set-up, after warm-up, peak, end (MB),
     the samples, and ``flat``: ``(end - after_warmup) / after_warmup < 10%``.
     Run it in a fresh process (``skin_bench memory`` does) for clean figures."""
-    import psutil
     proc = psutil.Process()
     rss = lambda: proc.memory_info().rss / 2**20  # noqa: E731
     start = rss()
