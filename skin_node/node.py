@@ -162,28 +162,13 @@ class SkinNode(Node):
         stages = list(p("pipeline"))
         self._pipes = [skin_node.Pipeline(self.character, stages=stages, **self._pipeline_kwargs)
                        for _ in range(workers)]
-        t_warm = time.perf_counter()
-        # Bent joints wake the solver and collision stages, and joints at their
-        # limits fold skin through skin (push-out, rechecks): compile all of it
-        # now, then settle back at rest, so the first real frame runs at full speed.
-        # Limits of +-pi (a glTF skeleton's) have their middle at rest, so every
-        # channel is also bent by 1 rad within its limits; and the volume stage's
-        # checked swelling, which runs only where a region stays short, is forced
-        # on for the bent poses. Every worker's pipeline runs them (after the
-        # first, the kernels are compiled and this builds their lazy caches).
-        limits = self.character.skeleton.limits
-        q_mid = np.concatenate([np.zeros(3), limits.mean(axis=-1).ravel()])
-        q_bent = np.concatenate([np.zeros(3), np.clip(1.0, limits[..., 0], limits[..., 1]).ravel()])
-        q_far = np.concatenate([np.zeros(3), limits[..., 1].ravel()])
-        for pipe in self._pipes:
-            checked = pipe.params["volume_checked_below"]
-            for q, below in ((q_mid, 0.0), (q_bent, 0.0), (q_far, 0.0),
-                             (np.zeros_like(q_mid), checked)):
-                pipe.set_params(volume_checked_below=below)
-                if not np.all(np.isfinite(pipe.deform(q))):
-                    raise ValueError(f"{p('character')}: warm-up pose deforms to "
-                                     "non-finite vertices")
-        warm_s = time.perf_counter() - t_warm
+        # Every worker's pipeline warms up (after the first, the kernels are
+        # compiled and this builds their lazy caches), so the first real frame
+        # runs at full speed.
+        try:
+            warm_s = sum(pipe.warm_up() for pipe in self._pipes)
+        except ValueError as e:
+            raise ValueError(f"{p('character')}: {e}") from None
         if workers > 1 and numba.threading_layer() == "workqueue":
             raise ValueError(f"workers:={workers} needs numba's omp or tbb threading layer "
                              "(its workqueue layer aborts on concurrent calls); only "

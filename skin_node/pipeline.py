@@ -332,6 +332,47 @@ class Pipeline:
         self._last_frame = fr
         return out
 
+    def warm_up(self, poses=()) -> float:
+        """Deform the poses that run every kernel the stages use, so that numba
+        compiling them (or loading them from its cache) and the stages' lazy
+        set-up land here and not in a real frame; then forget the state carried
+        between frames (:meth:`set_params`). Returns the seconds it took.
+
+        Bent joints wake the solver and collision stages, and joints at their
+        limits fold skin through skin (push-out, rechecks): the middle of the
+        skeleton's limits (limits of +-pi, a glTF skeleton's, have it at rest),
+        every channel bent by 1 rad within its limits and every channel at its
+        upper limit, with the volume stage's checked swelling forced on (it
+        runs only where a region stays short); then ``poses`` (a motion's own,
+        say) and the rest pose, with the parameters as they are.
+
+        Raises
+        ------
+        ValueError
+            When a warm-up pose deforms to non-finite vertices.
+        """
+        limits = self.character.skeleton.limits
+        root = np.zeros(3)
+        bent = [np.concatenate([root, limits.mean(axis=-1).ravel()]),
+                np.concatenate([root, np.clip(1.0, limits[..., 0], limits[..., 1]).ravel()]),
+                np.concatenate([root, limits[..., 1].ravel()])]
+        checked = self.params["volume_checked_below"]
+        t0 = time.perf_counter()
+        try:
+            self.set_params(volume_checked_below=0.0)
+            for q in bent:
+                self._warm(q)
+        finally:
+            self.set_params(volume_checked_below=checked)
+        for q in [*poses, self.character.skeleton.rest_pose()]:
+            self._warm(q)
+        self.set_params()
+        return time.perf_counter() - t0
+
+    def _warm(self, q: np.ndarray) -> None:
+        if not np.all(np.isfinite(self.deform(q))):
+            raise ValueError("warm-up pose deforms to non-finite vertices")
+
     def _tet_rows(self, fr: Frame) -> np.ndarray | None:
         """The tet-mesh vertices the stages after skinning use in ``fr``."""
         need = [s.tet_vertices(fr) for s in self.stages[1:]]

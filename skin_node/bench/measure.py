@@ -7,10 +7,11 @@ Scene
 Timing
     ``pipe.timings`` of every frame (ms per stage and ``total``), reported as
     median (p50) and 90th percentile (p90). Before the timed frames the pipeline
-    deforms a few warm-up poses (rest, first, deepest and last frame of the
-    motion) so numba compilation or cache loading never lands in a timed frame;
-    that warm-up time and the set-up time (character + rig load, pipeline
-    construction) are reported apart, in seconds.
+    warms up as the node does (:meth:`skin_node.Pipeline.warm_up`: poses at and
+    within the joints' limits, then the motion's first, deepest and last frame
+    and rest) so numba compilation or cache loading never lands in a timed
+    frame; that warm-up time and the set-up time (character + rig load,
+    pipeline construction) are reported apart, in seconds.
 ``volume_ratio``
     Enclosed volume of the deformed surface over the rest volume.
 ``region_volume_ratio``
@@ -422,16 +423,12 @@ class RunResult:
     summary: dict = field(default_factory=dict)
 
 
-def _warm_up(pipe: Pipeline, frames: np.ndarray, character) -> float:
-    """Deform rest, first, deepest and last pose; the seconds it took."""
-    skel = character.skeleton
+def _warm_up(pipe: Pipeline, frames: np.ndarray) -> float:
+    """:meth:`Pipeline.warm_up` with the first, deepest and last pose of
+    ``frames`` too; the seconds it took."""
+    skel = pipe.character.skeleton
     depth = [skel.joint_angles(q).max() for q in frames]
-    t0 = time.perf_counter()
-    for q in (skel.rest_pose(), frames[0], frames[int(np.argmax(depth))], frames[-1]):
-        pipe.deform(q)
-    dt = time.perf_counter() - t0
-    pipe.set_params()                 # forget state carried between frames
-    return dt
+    return pipe.warm_up((frames[0], frames[int(np.argmax(depth))], frames[-1]))
 
 
 def run_method(method: Method, scene: Scene, motion: Motion, reference: bool = True,
@@ -456,7 +453,7 @@ def run_method(method: Method, scene: Scene, motion: Motion, reference: bool = T
     t0 = time.perf_counter()
     pipe = method.build(ch)
     build_s = time.perf_counter() - t0
-    warm_s = _warm_up(pipe, motion.frames, ch)
+    warm_s = _warm_up(pipe, motion.frames)
     skel = ch.skeleton
     T = len(motion.frames)
     depth = np.array([skel.joint_angles(q).max() for q in motion.frames])
@@ -468,7 +465,7 @@ def run_method(method: Method, scene: Scene, motion: Motion, reference: bool = T
         rscene = reference_scene(scene)
         rch, _ = load_scene(rscene)
         ref_pipe = method.with_params(label=False, iterations=60, active_threshold=0.0).build(rch)
-        ref_warm = _warm_up(ref_pipe, motion.frames[:1], rch)
+        ref_warm = _warm_up(ref_pipe, motion.frames[:1])
     rows, times = [], {}
     for t, q in enumerate(motion.frames):
         V = pipe.deform(q)
@@ -612,7 +609,7 @@ def memory_profile(scene="humanoid:24000", frames: int = 3000, every: int = 250,
     setup = rss()
     clip = clip or default_clip_name(ch.name)
     Q = make_motion(clip, ch).frames
-    warm_s = _warm_up(pipe, Q, ch)
+    warm_s = _warm_up(pipe, Q)
     warm = rss()
     samples = [(0, warm)]
     bar = Progress(frames, f"memory {scene.label}", enabled=progress)
