@@ -62,7 +62,6 @@ import threading
 import time
 from collections import Counter
 
-import numba
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
@@ -82,6 +81,7 @@ import skin_node
 from msg_adapters import (TIME_JUMP_TOLERANCE_S, ChannelMapper, JointStateError, Reason,
                           StampOrder, diagnostic_array, joint_state_to_arrays, load_name_map,
                           mesh_to_msg, triangle_list_marker_cdr, vertices_to_point_cloud2)
+from skin_node.kernels.threads import allow_concurrent_calls, check_concurrent_calls
 
 NODE_NAME = "skin_node"
 THROTTLE_S = 2.0
@@ -156,9 +156,7 @@ class SkinNode(Node):
             if self._pipeline_kwargs["warm_start"]:
                 raise ValueError(f"warm_start needs workers:=1 (each of {workers} workers "
                                  "would carry the history of only the frames it took)")
-            # Workers call the parallel kernels at the same time: pick a threading
-            # layer that allows it (numba's own workqueue aborts the process).
-            numba.config.THREADING_LAYER = "threadsafe"
+            allow_concurrent_calls()            # the workers deform at the same time
         stages = list(p("pipeline"))
         self._pipes = [skin_node.Pipeline(self.character, stages=stages, **self._pipeline_kwargs)
                        for _ in range(workers)]
@@ -169,10 +167,8 @@ class SkinNode(Node):
             warm_s = sum(pipe.warm_up() for pipe in self._pipes)
         except ValueError as e:
             raise ValueError(f"{p('character')}: {e}") from None
-        if workers > 1 and numba.threading_layer() == "workqueue":
-            raise ValueError(f"workers:={workers} needs numba's omp or tbb threading layer "
-                             "(its workqueue layer aborts on concurrent calls); only "
-                             "workqueue could be loaded here")
+        if workers > 1:
+            check_concurrent_calls(f"workers:={workers}")
 
         # Counters (written by the callback or the workers, read by the 1 Hz timer).
         self._rejected: Counter = Counter()
