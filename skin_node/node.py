@@ -55,8 +55,6 @@ at the start of the next frame each worker takes; ``character``,
 """
 from __future__ import annotations
 
-import contextlib
-import signal
 import sys
 import threading
 import time
@@ -67,11 +65,8 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType, SetParametersResult)
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.task import Future
 from sensor_msgs.msg import JointState, PointCloud2
 from shape_msgs.msg import Mesh
 from std_msgs.msg import Header
@@ -82,6 +77,7 @@ from msg_adapters import (TIME_JUMP_TOLERANCE_S, ChannelMapper, JointStateError,
                           StampOrder, diagnostic_array, joint_state_to_arrays, load_name_map,
                           mesh_to_msg, triangle_list_marker_cdr, vertices_to_point_cloud2)
 from skin_node.kernels.threads import allow_concurrent_calls, check_concurrent_calls
+from skin_node.processes import build, init_ros, spin_until_shutdown
 
 NODE_NAME = "skin_node"
 THROTTLE_S = 2.0
@@ -443,7 +439,7 @@ class SkinNode(Node):
         """Stop the workers and join them (each finishes the frame it is on).
 
         A worker must not outlive the node (it would publish through destroyed
-        publishers) nor the interpreter (see :class:`SpinThread`); a frame is
+        publishers) nor the interpreter (see :class:`skin_node.processes.SpinThread`); a frame is
         short, so the join is not cut short.
         """
         with self._cond:
@@ -451,137 +447,6 @@ class SkinNode(Node):
             self._cond.notify_all()
         for t in self._workers:
             t.join()
-
-
-_SETTING_UP = threading.Event()
-
-
-def _on_signal(signum, frame) -> None:
-    if _SETTING_UP.is_set():
-        raise KeyboardInterrupt
-
-
-def init_ros(args: list | None) -> None:
-    """``rclpy.init`` with SIGINT and SIGTERM handled in two phases.
-
-    rclpy's handlers shut the context down, which ends ``spin``, and then chain
-    to the Python handler installed here. That one raises KeyboardInterrupt only
-    inside :func:`setting_up` (long numpy/numba set-up never reaches ``spin``);
-    afterwards it does nothing, so no interrupt can land in the middle of a
-    clean shutdown.
-    """
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, _on_signal)
-    rclpy.init(args=args)
-
-
-@contextlib.contextmanager
-def setting_up():
-    """Inside this block SIGINT/SIGTERM raise KeyboardInterrupt (see :func:`init_ros`)."""
-    _SETTING_UP.set()
-    try:
-        yield
-    finally:
-        _SETTING_UP.clear()
-
-
-def spin_until_shutdown(node: Node, future: Future | None = None) -> None:
-    """Spin ``node`` until ``future`` is done or the context shuts down.
-
-    A signal can shut the context down while rclpy builds its next wait set,
-    which then raises instead of ExternalShutdownException: after a shutdown
-    any such error is the normal way out, not a failure.
-    """
-    try:
-        if future is None:
-            rclpy.spin(node)
-        else:
-            rclpy.spin_until_future_complete(node, future)
-    except ExternalShutdownException:
-        pass
-    except Exception:
-        if node.context.ok():
-            raise
-
-
-class SpinThread:
-    """An executor spinning in a thread of its own, stopped in order.
-
-    For a tool whose main thread has other work (pacing a playback, feeding a
-    benchmark). Such a thread must never outlive ``main``: at interpreter exit
-    Python ends a still-running thread with ``pthread_exit`` when it next takes
-    the GIL, and for one coming back from rclpy's wait the unwind crosses a
-    ``noexcept`` C++ frame of rclpy, so ``std::terminate`` aborts the process
-    ("terminate called without an active exception", SIGABRT) after all else
-    went right. ``Executor.shutdown`` neither joins the thread nor (Jazzy)
-    waits for a running callback. So :meth:`stop` ends the spin, joins the
-    thread, and only then shuts the executor down; as a context manager, every
-    way out of the block does that.
-
-    Parameters
-    ----------
-    executor : rclpy.executors.Executor
-        With its nodes added; this thread is the only one that spins it.
-    name : str
-        The thread's name.
-    """
-
-    def __init__(self, executor, name: str = "spin") -> None:
-        self.executor = executor
-        self._done = Future()
-        self._error: BaseException | None = None
-        self._thread = threading.Thread(target=self._spin, name=name)
-
-    def _spin(self) -> None:
-        try:
-            self.executor.spin_until_future_complete(self._done)
-        except ExternalShutdownException:
-            pass                    # the context was shut down (a signal): the way out
-        except BaseException as e:  # noqa: BLE001 - stop() raises it in the main thread
-            if self.executor.context.ok():
-                self._error = e
-
-    def start(self) -> "SpinThread":
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        """Stop spinning once the running callback (if any) returns, join the
-        thread, shut the executor down; then raise what a callback raised."""
-        self._done.set_result(True)     # its done callback wakes the executor's wait
-        if self._thread.ident is not None:
-            self._thread.join()
-        self.executor.shutdown()
-        error, self._error = self._error, None
-        if error is not None:
-            raise error
-
-    def __enter__(self) -> "SpinThread":
-        return self.start()
-
-    def __exit__(self, *exc) -> None:
-        self.stop()
-
-
-def build(name: str, factory):
-    """Run ``factory()`` (a node's whole set-up) as a console script should.
-
-    Returns ``(node, None)``, or ``(None, exit_code)``: 0 when SIGINT/SIGTERM
-    arrived during set-up, 2 after printing one line ``<name>: error: ...``
-    (never a bare traceback) for a bad parameter, file or any other failure.
-    """
-    try:
-        with setting_up():
-            return factory(), None
-    except KeyboardInterrupt:
-        rclpy.try_shutdown()
-        return None, 0
-    except (ValueError, OSError, ParameterException) as e:
-        print(f"{name}: error: {e}", file=sys.stderr)
-    except Exception as e:  # noqa: BLE001 - one line, not a traceback, for any set-up failure
-        print(f"{name}: error: {type(e).__name__}: {e}", file=sys.stderr)
-    rclpy.try_shutdown()
-    return None, 2
 
 
 def main(args: list | None = None) -> int:

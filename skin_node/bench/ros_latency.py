@@ -28,7 +28,6 @@ import numpy as np
 from ..builtin.characters import BUILTIN_CHARACTERS
 from ..character import load_character
 from ..motion import load_motion
-from ..processes import command, stop
 from ..ros_domain import claim_domain
 
 
@@ -59,7 +58,8 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     from shape_msgs.msg import Mesh
 
     from msg_adapters import channels_to_joint_state, diagnostic_values, header_stamp_ns
-    from skin_node.node import QOS_JOINT_STATES, QOS_LATCHED, QOS_STREAM, SpinThread
+    from skin_node.node import QOS_JOINT_STATES, QOS_LATCHED, QOS_STREAM
+    from skin_node.processes import SpinThread, command, stop
 
     if domain is None:
         with claim_domain() as claim:           # held until the node is gone
