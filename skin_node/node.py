@@ -59,6 +59,9 @@ import sys
 import threading
 import time
 from collections import Counter
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Mapping
 
 import numpy as np
 import rclpy
@@ -117,6 +120,19 @@ def _stamp_ns(stamp) -> int:
     return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
+@dataclass(frozen=True)
+class LiveConfig:
+    """What the node deforms and publishes with, as the set-parameters
+    callback accepted it: the stages, the pipeline parameters (checked, a
+    read-only mapping) and the frame of the outputs. Never changed: a change
+    replaces it whole, under the node's lock, and each worker brings its
+    pipeline up to the one it reads before its next frame."""
+
+    stages: tuple
+    params: Mapping
+    frame_id: str
+
+
 class SkinNode(Node):
     """Subscribes ``joint_states``, publishes the deformed skin.
 
@@ -146,15 +162,15 @@ class SkinNode(Node):
             ignore_override=True)
         name_map = load_name_map(p("name_map")) if p("name_map") else None
         self._mapper = ChannelMapper(self.character.channel_names, name_map)
-        self._pipeline_kwargs = {k: p(k) for k in skin_node.PIPELINE_PARAMS}
+        kwargs = {k: p(k) for k in skin_node.PIPELINE_PARAMS}
         workers = p("workers")
         if workers > 1:
-            if self._pipeline_kwargs["warm_start"]:
+            if kwargs["warm_start"]:
                 raise ValueError(f"warm_start needs workers:=1 (each of {workers} workers "
                                  "would carry the history of only the frames it took)")
             allow_concurrent_calls()            # the workers deform at the same time
         stages = list(p("pipeline"))
-        self._pipes = [skin_node.Pipeline(self.character, stages=stages, **self._pipeline_kwargs)
+        self._pipes = [skin_node.Pipeline(self.character, stages=stages, **kwargs)
                        for _ in range(workers)]
         # Every worker's pipeline warms up (after the first, the kernels are
         # compiled and this builds their lazy caches), so the first real frame
@@ -178,11 +194,13 @@ class SkinNode(Node):
         self._cond = threading.Condition()
         self._pending: tuple | None = None
         self._taken = self._published = 0
-        # What the set-parameters callback accepted, in full; each worker brings
-        # its pipeline up to ``version`` before its next frame.
-        self._config = {"version": 0, "stages": stages, "kwargs": dict(self._pipeline_kwargs),
-                        "frame_id": p("frame_id"), "built": None}
-        self._announced = 0
+        # What the set-parameters callback accepted (the pipelines were built
+        # with the first), the pipeline it built to check a new stage list (for
+        # the first worker that needs one) and the configuration last logged.
+        self._live = self._built_with = LiveConfig(
+            tuple(stages), MappingProxyType(dict(self._pipes[0].params)), p("frame_id"))
+        self._spare: skin_node.Pipeline | None = None
+        self._announced = self._live
         self._stopping = False
 
         self._points_pub = self.create_publisher(PointCloud2, "skin/points", QOS_STREAM)
@@ -248,63 +266,61 @@ class SkinNode(Node):
             self.declare_parameter(name, default, _spec_descriptor(name, spec))
 
     def _on_set_parameters(self, params: list) -> SetParametersResult:
-        """Check a change; a valid one is applied by the worker before the next frame.
+        """Check a change; a valid one is applied by the workers before their next frame.
 
         Types, ranges and read-only flags are enforced by the descriptors; the
         core checks the rest (choices, stage order) by validating the values or,
         for ``pipeline``, by building the new pipeline here.
         """
         updates = {p.name: p.value for p in params}
-        core = {k: v for k, v in updates.items() if k in skin_node.PIPELINE_PARAMS}
+        live = self._live
         try:
             if updates.get("frame_id", "x") == "":
                 raise ValueError("frame_id must not be empty")
-            for k, v in core.items():
-                skin_node.PIPELINE_PARAMS[k].check(k, v)
-            kwargs = {**self._pipeline_kwargs, **core}
-            pipe = (skin_node.Pipeline(self.character, stages=list(updates["pipeline"]), **kwargs)
-                    if "pipeline" in updates else None)
+            core = {k: skin_node.PIPELINE_PARAMS[k].check(k, v) for k, v in updates.items()
+                    if k in skin_node.PIPELINE_PARAMS}
+            kwargs = {**live.params, **core}
+            stages = tuple(updates.get("pipeline", live.stages))
+            spare = (skin_node.Pipeline(self.character, stages=list(stages), **kwargs)
+                     if "pipeline" in updates else None)
         except ValueError as e:
             return SetParametersResult(successful=False, reason=str(e))
         if core.get("warm_start") and len(self._pipes) > 1:
             return SetParametersResult(successful=False, reason=(
                 f"warm_start needs workers:=1, not {len(self._pipes)}"))
-        self._pipeline_kwargs = kwargs
         if "time_jump_tolerance" in updates:
             self._stamps.tolerance_s = updates["time_jump_tolerance"]
+        accepted = LiveConfig(stages, MappingProxyType(kwargs),
+                              updates.get("frame_id", live.frame_id))
         with self._cond:
-            c = self._config
-            c["version"] += 1
-            c["kwargs"] = dict(kwargs)
-            if pipe is not None:
-                c["stages"], c["built"] = list(updates["pipeline"]), pipe
-            c["frame_id"] = updates.get("frame_id", c["frame_id"])
+            self._live = accepted
+            if spare is not None:
+                self._spare = spare
         return SetParametersResult(successful=True)
 
-    def _configure(self, pipe, version: int):
-        """Worker side: bring ``pipe`` (at ``version``) up to what the set-parameters
-        callback accepted. Returns (pipeline, version, frame_id)."""
+    def _configure(self, pipe: skin_node.Pipeline, config: LiveConfig):
+        """Worker side: bring ``pipe`` (set up for ``config``) up to the live
+        configuration. Returns (the pipeline, the configuration it now has)."""
         with self._cond:
-            c = self._config
-            if c["version"] == version:
-                return pipe, version, c["frame_id"]
-            stages, kwargs = c["stages"], c["kwargs"]
-            built, version, frame_id = c["built"], c["version"], c["frame_id"]
-            if pipe.stage_names != stages and built is not None and built.stage_names == stages:
-                c["built"] = None                # the first worker takes the checked one
-            else:
-                built = None
-            announce = version > self._announced
-            self._announced = max(self._announced, version)
-        if pipe.stage_names != stages:
-            pipe = built or skin_node.Pipeline(self.character, stages=stages, **kwargs)
-        changed = {k: v for k, v in kwargs.items() if pipe.params[k] != v}
+            live = self._live
+            if live is config:
+                return pipe, config
+            spare = None
+            if tuple(pipe.stage_names) != live.stages and self._spare is not None \
+                    and tuple(self._spare.stage_names) == live.stages:
+                spare, self._spare = self._spare, None    # the first worker takes the checked one
+            announce = self._announced is not live
+            self._announced = live
+        if tuple(pipe.stage_names) != live.stages:
+            pipe = spare or skin_node.Pipeline(self.character, stages=list(live.stages),
+                                               **live.params)
+        changed = {k: v for k, v in live.params.items() if pipe.params[k] != v}
         if changed:
             pipe.set_params(**changed)
         if announce:
             self.get_logger().info(f"parameters applied: stages {pipe.stage_names}, "
                                    f"{sorted(changed)}")
-        return pipe, version, frame_id
+        return pipe, live
 
     # ------------------------------------------------------------ callbacks
     def _on_joint_state(self, msg: JointState) -> None:
@@ -334,7 +350,7 @@ class SkinNode(Node):
 
     def _work(self, w: int) -> None:
         """Worker ``w``: deform the newest pending pose, publish it in its turn."""
-        pipe, version = self._pipes[w], 0
+        pipe, config = self._pipes[w], self._built_with
         while True:
             with self._cond:
                 while self._pending is None and not self._stopping:
@@ -345,7 +361,7 @@ class SkinNode(Node):
                 seq, self._taken = self._taken, self._taken + 1
             V = None
             try:
-                pipe, version, frame_id = self._configure(pipe, version)
+                pipe, config = self._configure(pipe, config)
                 self._pipes[w] = pipe
                 t0 = time.perf_counter()
                 V = pipe.deform(q)
@@ -368,7 +384,7 @@ class SkinNode(Node):
                     return
             try:
                 if V is not None:
-                    self._publish(w, V, stamp, frame_id, pipe, deform_ms, t_received)
+                    self._publish(w, V, stamp, config.frame_id, pipe, deform_ms, t_received)
             except Exception as e:  # noqa: BLE001
                 if not self._stopping:
                     self._count_failure()
