@@ -48,7 +48,8 @@ from sensor_msgs.msg import JointState
 
 from msg_adapters import Reason, diagnostic_values, header_stamp_ns
 from skin_node.io.bags import BagReader
-from skin_node.node import QOS_JOINT_STATES, SpinThread
+from skin_node.node import QOS_JOINT_STATES
+from skin_node.processes import SpinThread
 
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 POINTS_TOPIC = "skin/points"

@@ -3,12 +3,18 @@ from __future__ import annotations
 
 import hashlib
 import inspect
-from dataclasses import dataclass, replace
+import sys
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
+from .builtin import characters as chars
+from .io.character_file import load_character_file, read_closed_mesh
+from .io.gltf import load_gltf
 from .rigging.build import Rig, RigOptions, Steps, cache_dir, cached_rig
+from .rigging.embed import fit_template
+from .rigging.regions import JointRegions
 from .skeleton import Skeleton
 
 #: Default tet counts: the paper's human has 51,110 tets; the arm prototype 12k.
@@ -38,6 +44,15 @@ class Character:
     skeleton: Skeleton
     rig: Rig
     options: RigOptions
+    _regions: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+
+    def regions(self, scheme: str = "character") -> JointRegions:
+        """The :class:`~skin_node.rigging.regions.JointRegions` of the weighting
+        ``scheme`` (:data:`~skin_node.rigging.build.WEIGHT_SCHEMES`), built on
+        first use and shared by every pipeline and stage of this character."""
+        if scheme not in self._regions:
+            self._regions[scheme] = JointRegions(self, self.rig.weights(scheme))
+        return self._regions[scheme]
 
     @property
     def channel_names(self) -> list:
@@ -54,7 +69,6 @@ class Character:
 
 
 def _builtin_mesh(name: str, surface_vertices: int, steps: Steps, use_cache: bool):
-    from .builtin import characters as chars
     if name not in chars.BUILTIN_CHARACTERS:
         raise ValueError(f"unknown built-in character '{name}' "
                          f"(expected one of {sorted(chars.BUILTIN_CHARACTERS)} or a file path)")
@@ -122,24 +136,21 @@ def load_character(spec: str, surface_vertices: int | None = None, tet_count: in
     spec = str(spec)
     file_w = None
     if not (("/" in spec) or ("." in spec)):
-        from .builtin.characters import DEFAULT_SURFACE_VERTICES
-        if spec not in DEFAULT_SURFACE_VERTICES:
+        if spec not in chars.DEFAULT_SURFACE_VERTICES:
             raise ValueError(f"{spec}: unknown character (expected 'arm', 'humanoid' "
                              "or the path of a character file)")
-        n = int(surface_vertices or DEFAULT_SURFACE_VERTICES[spec])
+        n = int(surface_vertices or chars.DEFAULT_SURFACE_VERTICES[spec])
         if n < 100:
             raise ValueError(f"{spec}: surface_vertices must be at least 100, got {n}")
         V, F, skel = _builtin_mesh(spec, n, steps, cache)
         name = spec
         default_tets = DEFAULT_TETS[spec]
     elif Path(spec).suffix.lower() in (".glb", ".gltf"):
-        from .io.gltf import load_gltf
         g = load_gltf(Path(spec))
         V, F, skel, file_w = g.V, g.F, g.skeleton, (g.Widx, g.Wval)
         name = Path(spec).stem
         default_tets = max(6000, 2 * len(V))
     else:
-        from .io.character_file import load_character_file
         V, F, skel = load_character_file(Path(spec), verbose=progress)
         name = Path(spec).stem
         default_tets = max(6000, 2 * len(V))
@@ -155,3 +166,54 @@ def load_character(spec: str, surface_vertices: int | None = None, tet_count: in
         raise ValueError(f"{spec}: {e}") from None
     steps("ready")
     return Character(name=name, V=V, F=F, skeleton=skel, rig=rig, options=opt)
+
+
+def load_embedded(mesh_path: str | Path, template: str | Path = "humanoid", up=None,
+                  forward=None, tet_count: int | None = None, options=None,
+                  cache: bool = True, progress: bool = False):
+    """A :class:`Character` from a bare closed mesh: the
+    template skeleton is embedded automatically, then rigged as any character.
+
+    Parameters
+    ----------
+    mesh_path : str or Path
+        A closed mesh file (OBJ, PLY, STL, OFF, glTF/GLB: its first mesh in its
+        scene pose), metres.
+    template : str or Path
+        ``"humanoid"``, ``"quadruped"`` or a template YAML file.
+    up, forward : optional
+        See :func:`embed_skeleton`.
+    tet_count : int, optional
+        Target tet count (default ``max(6000, 2 * vertices)``, as for character files).
+    options : RigOptions, optional
+    cache : bool
+        Use the on-disk rig cache.
+    progress : bool
+        Print set-up steps to stderr when set-up is slow.
+
+    Raises
+    ------
+    ValueError
+        ``"<path>: <problem>"`` for a bad mesh or template.
+    """
+    steps = Steps(f"set-up of {mesh_path}", enabled=progress)
+    V, F = read_closed_mesh(mesh_path)
+    try:
+        emb = fit_template(V, F, template, up=up, forward=forward)
+    except ValueError as e:
+        raise ValueError(f"{mesh_path}: {e}") from None
+    if not emb.passed:
+        raise ValueError(f"{mesh_path}: {emb.failure()}")
+    if progress:
+        print(f"[skin_node] {mesh_path}: {emb.summary()}", file=sys.stderr, flush=True)
+    skel = emb.skeleton
+    steps(f"skeleton embedded ({skel.n_joints} joints)")
+    opt = options or RigOptions()
+    opt = replace(opt, tet_count=int(tet_count or (opt.tet_count if options
+                                                   else max(6000, 2 * len(V)))))
+    try:
+        rig = cached_rig(V, F, skel, opt, steps, use_cache=cache)
+    except ValueError as e:
+        raise ValueError(f"{mesh_path}: {e}") from None
+    steps("ready")
+    return Character(name=Path(mesh_path).stem, V=V, F=F, skeleton=skel, rig=rig, options=opt)

@@ -22,7 +22,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .builtin.clips import CLIP_NAMES, FPS, Clip, default_clip_name, make_clip
+from .builtin.channels import FPS
+from .builtin.characters import BUILTIN_CHARACTERS
+from .builtin.clips import CLIP_NAMES, Clip, default_clip_name, make_clip
+from .character import load_character
+from .io.bvh import load_bvh
+from .io.character_file import load_character_file
+from .io.gltf import gltf_animation_names, load_gltf
+from .retarget import load_mapping, retarget_bvh
 from .skeleton import Skeleton
 
 #: Prefix that names a glTF file's animation explicitly.
@@ -32,6 +39,7 @@ GLTF_PREFIX = "gltf:"
 def config_path(name: str) -> Path:
     """A file of the package's config/ folder, installed or in the source tree."""
     try:
+        # deferred: ament_index_python comes with a ROS install, which is optional
         from ament_index_python.packages import get_package_share_directory
         path = Path(get_package_share_directory("skin_node")) / "config" / name
         if path.exists():
@@ -47,17 +55,13 @@ def is_gltf(character: str) -> bool:
 
 def character_skeleton(character: str) -> Skeleton:
     """The skeleton of a built-in character or a character file, without rigging it."""
-    from .builtin.characters import BUILTIN_CHARACTERS
     if character in BUILTIN_CHARACTERS:
         # The skeleton does not depend on the density: the coarsest mesh is cheapest.
         return BUILTIN_CHARACTERS[character](surface_vertices=2000)[2]
     if is_gltf(character):
-        from .io.gltf import load_gltf
         return load_gltf(character).skeleton
     if Path(str(character)).suffix.lower() in (".yaml", ".yml"):
-        from .io.character_file import load_character_file
         return load_character_file(Path(character))[2]
-    from . import load_character
     return load_character(character).skeleton
 
 
@@ -65,7 +69,6 @@ def file_animations(character: str) -> list[str]:
     """Names of a glTF character's animations (empty for anything else)."""
     if not is_gltf(character):
         return []
-    from .io.gltf import gltf_animation_names
     return gltf_animation_names(character)
 
 
@@ -106,7 +109,6 @@ def file_clip(character: str, name: str, fps: float | None = None):
     own = file_animations(character)
     if not explicit and key not in own:
         return None
-    from .io.gltf import load_gltf
     return load_gltf(character).clip(key, fps=float(fps or FPS))
 
 
@@ -140,8 +142,6 @@ def load_motion(character: str, clip: str = "", bvh: str = "", mapping: str = ""
     """
     skeleton = skeleton or character_skeleton(character)
     if bvh:
-        from .io.bvh import load_bvh
-        from .retarget import load_mapping, retarget_bvh
         source = load_bvh(bvh)
         # A character file picks its map by name: .../CesiumMan.glb -> cmu_to_cesiumman.yaml
         default = config_path(f"cmu_to_{Path(character).stem.lower()}.yaml")

@@ -55,24 +55,21 @@ at the start of the next frame each worker takes; ``character``,
 """
 from __future__ import annotations
 
-import contextlib
-import signal
 import sys
 import threading
 import time
 from collections import Counter
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Mapping
 
-import numba
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType, SetParametersResult)
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.task import Future
 from sensor_msgs.msg import JointState, PointCloud2
 from shape_msgs.msg import Mesh
 from std_msgs.msg import Header
@@ -82,6 +79,8 @@ import skin_node
 from msg_adapters import (TIME_JUMP_TOLERANCE_S, ChannelMapper, JointStateError, Reason,
                           StampOrder, diagnostic_array, joint_state_to_arrays, load_name_map,
                           mesh_to_msg, triangle_list_marker_cdr, vertices_to_point_cloud2)
+from skin_node.kernels.threads import allow_concurrent_calls, check_concurrent_calls
+from skin_node.processes import build, init_ros, spin_until_shutdown
 
 NODE_NAME = "skin_node"
 THROTTLE_S = 2.0
@@ -121,6 +120,19 @@ def _stamp_ns(stamp) -> int:
     return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
+@dataclass(frozen=True)
+class LiveConfig:
+    """What the node deforms and publishes with, as the set-parameters
+    callback accepted it: the stages, the pipeline parameters (checked, a
+    read-only mapping) and the frame of the outputs. Never changed: a change
+    replaces it whole, under the node's lock, and each worker brings its
+    pipeline up to the one it reads before its next frame."""
+
+    stages: tuple
+    params: Mapping
+    frame_id: str
+
+
 class SkinNode(Node):
     """Subscribes ``joint_states``, publishes the deformed skin.
 
@@ -150,44 +162,25 @@ class SkinNode(Node):
             ignore_override=True)
         name_map = load_name_map(p("name_map")) if p("name_map") else None
         self._mapper = ChannelMapper(self.character.channel_names, name_map)
-        self._pipeline_kwargs = {k: p(k) for k in skin_node.PIPELINE_PARAMS}
+        kwargs = {k: p(k) for k in skin_node.PIPELINE_PARAMS}
         workers = p("workers")
         if workers > 1:
-            if self._pipeline_kwargs["warm_start"]:
+            if kwargs["warm_start"]:
                 raise ValueError(f"warm_start needs workers:=1 (each of {workers} workers "
                                  "would carry the history of only the frames it took)")
-            # Workers call the parallel kernels at the same time: pick a threading
-            # layer that allows it (numba's own workqueue aborts the process).
-            numba.config.THREADING_LAYER = "threadsafe"
+            allow_concurrent_calls()            # the workers deform at the same time
         stages = list(p("pipeline"))
-        self._pipes = [skin_node.Pipeline(self.character, stages=stages, **self._pipeline_kwargs)
+        self._pipes = [skin_node.Pipeline(self.character, stages=stages, **kwargs)
                        for _ in range(workers)]
-        t_warm = time.perf_counter()
-        # Bent joints wake the solver and collision stages, and joints at their
-        # limits fold skin through skin (push-out, rechecks): compile all of it
-        # now, then settle back at rest, so the first real frame runs at full speed.
-        # Limits of +-pi (a glTF skeleton's) have their middle at rest, so every
-        # channel is also bent by 1 rad within its limits; and the volume stage's
-        # checked swelling, which runs only where a region stays short, is forced
-        # on for the bent poses. Every worker's pipeline runs them (after the
-        # first, the kernels are compiled and this builds their lazy caches).
-        limits = self.character.skeleton.limits
-        q_mid = np.concatenate([np.zeros(3), limits.mean(axis=-1).ravel()])
-        q_bent = np.concatenate([np.zeros(3), np.clip(1.0, limits[..., 0], limits[..., 1]).ravel()])
-        q_far = np.concatenate([np.zeros(3), limits[..., 1].ravel()])
-        for pipe in self._pipes:
-            checked = pipe.params["volume_checked_below"]
-            for q, below in ((q_mid, 0.0), (q_bent, 0.0), (q_far, 0.0),
-                             (np.zeros_like(q_mid), checked)):
-                pipe.set_params(volume_checked_below=below)
-                if not np.all(np.isfinite(pipe.deform(q))):
-                    raise ValueError(f"{p('character')}: warm-up pose deforms to "
-                                     "non-finite vertices")
-        warm_s = time.perf_counter() - t_warm
-        if workers > 1 and numba.threading_layer() == "workqueue":
-            raise ValueError(f"workers:={workers} needs numba's omp or tbb threading layer "
-                             "(its workqueue layer aborts on concurrent calls); only "
-                             "workqueue could be loaded here")
+        # Every worker's pipeline warms up (after the first, the kernels are
+        # compiled and this builds their lazy caches), so the first real frame
+        # runs at full speed.
+        try:
+            warm_s = sum(pipe.warm_up() for pipe in self._pipes)
+        except ValueError as e:
+            raise ValueError(f"{p('character')}: {e}") from None
+        if workers > 1:
+            check_concurrent_calls(f"workers:={workers}")
 
         # Counters (written by the callback or the workers, read by the 1 Hz timer).
         self._rejected: Counter = Counter()
@@ -201,11 +194,13 @@ class SkinNode(Node):
         self._cond = threading.Condition()
         self._pending: tuple | None = None
         self._taken = self._published = 0
-        # What the set-parameters callback accepted, in full; each worker brings
-        # its pipeline up to ``version`` before its next frame.
-        self._config = {"version": 0, "stages": stages, "kwargs": dict(self._pipeline_kwargs),
-                        "frame_id": p("frame_id"), "built": None}
-        self._announced = 0
+        # What the set-parameters callback accepted (the pipelines were built
+        # with the first), the pipeline it built to check a new stage list (for
+        # the first worker that needs one) and the configuration last logged.
+        self._live = self._built_with = LiveConfig(
+            tuple(stages), MappingProxyType(dict(self._pipes[0].params)), p("frame_id"))
+        self._spare: skin_node.Pipeline | None = None
+        self._announced = self._live
         self._stopping = False
 
         self._points_pub = self.create_publisher(PointCloud2, "skin/points", QOS_STREAM)
@@ -271,63 +266,61 @@ class SkinNode(Node):
             self.declare_parameter(name, default, _spec_descriptor(name, spec))
 
     def _on_set_parameters(self, params: list) -> SetParametersResult:
-        """Check a change; a valid one is applied by the worker before the next frame.
+        """Check a change; a valid one is applied by the workers before their next frame.
 
         Types, ranges and read-only flags are enforced by the descriptors; the
         core checks the rest (choices, stage order) by validating the values or,
         for ``pipeline``, by building the new pipeline here.
         """
         updates = {p.name: p.value for p in params}
-        core = {k: v for k, v in updates.items() if k in skin_node.PIPELINE_PARAMS}
+        live = self._live
         try:
             if updates.get("frame_id", "x") == "":
                 raise ValueError("frame_id must not be empty")
-            for k, v in core.items():
-                skin_node.PIPELINE_PARAMS[k].check(k, v)
-            kwargs = {**self._pipeline_kwargs, **core}
-            pipe = (skin_node.Pipeline(self.character, stages=list(updates["pipeline"]), **kwargs)
-                    if "pipeline" in updates else None)
+            core = {k: skin_node.PIPELINE_PARAMS[k].check(k, v) for k, v in updates.items()
+                    if k in skin_node.PIPELINE_PARAMS}
+            kwargs = {**live.params, **core}
+            stages = tuple(updates.get("pipeline", live.stages))
+            spare = (skin_node.Pipeline(self.character, stages=list(stages), **kwargs)
+                     if "pipeline" in updates else None)
         except ValueError as e:
             return SetParametersResult(successful=False, reason=str(e))
         if core.get("warm_start") and len(self._pipes) > 1:
             return SetParametersResult(successful=False, reason=(
                 f"warm_start needs workers:=1, not {len(self._pipes)}"))
-        self._pipeline_kwargs = kwargs
         if "time_jump_tolerance" in updates:
             self._stamps.tolerance_s = updates["time_jump_tolerance"]
+        accepted = LiveConfig(stages, MappingProxyType(kwargs),
+                              updates.get("frame_id", live.frame_id))
         with self._cond:
-            c = self._config
-            c["version"] += 1
-            c["kwargs"] = dict(kwargs)
-            if pipe is not None:
-                c["stages"], c["built"] = list(updates["pipeline"]), pipe
-            c["frame_id"] = updates.get("frame_id", c["frame_id"])
+            self._live = accepted
+            if spare is not None:
+                self._spare = spare
         return SetParametersResult(successful=True)
 
-    def _configure(self, pipe, version: int):
-        """Worker side: bring ``pipe`` (at ``version``) up to what the set-parameters
-        callback accepted. Returns (pipeline, version, frame_id)."""
+    def _configure(self, pipe: skin_node.Pipeline, config: LiveConfig):
+        """Worker side: bring ``pipe`` (set up for ``config``) up to the live
+        configuration. Returns (the pipeline, the configuration it now has)."""
         with self._cond:
-            c = self._config
-            if c["version"] == version:
-                return pipe, version, c["frame_id"]
-            stages, kwargs = c["stages"], c["kwargs"]
-            built, version, frame_id = c["built"], c["version"], c["frame_id"]
-            if pipe.stage_names != stages and built is not None and built.stage_names == stages:
-                c["built"] = None                # the first worker takes the checked one
-            else:
-                built = None
-            announce = version > self._announced
-            self._announced = max(self._announced, version)
-        if pipe.stage_names != stages:
-            pipe = built or skin_node.Pipeline(self.character, stages=stages, **kwargs)
-        changed = {k: v for k, v in kwargs.items() if pipe.params[k] != v}
+            live = self._live
+            if live is config:
+                return pipe, config
+            spare = None
+            if tuple(pipe.stage_names) != live.stages and self._spare is not None \
+                    and tuple(self._spare.stage_names) == live.stages:
+                spare, self._spare = self._spare, None    # the first worker takes the checked one
+            announce = self._announced is not live
+            self._announced = live
+        if tuple(pipe.stage_names) != live.stages:
+            pipe = spare or skin_node.Pipeline(self.character, stages=list(live.stages),
+                                               **live.params)
+        changed = {k: v for k, v in live.params.items() if pipe.params[k] != v}
         if changed:
             pipe.set_params(**changed)
         if announce:
             self.get_logger().info(f"parameters applied: stages {pipe.stage_names}, "
                                    f"{sorted(changed)}")
-        return pipe, version, frame_id
+        return pipe, live
 
     # ------------------------------------------------------------ callbacks
     def _on_joint_state(self, msg: JointState) -> None:
@@ -357,7 +350,7 @@ class SkinNode(Node):
 
     def _work(self, w: int) -> None:
         """Worker ``w``: deform the newest pending pose, publish it in its turn."""
-        pipe, version = self._pipes[w], 0
+        pipe, config = self._pipes[w], self._built_with
         while True:
             with self._cond:
                 while self._pending is None and not self._stopping:
@@ -368,7 +361,7 @@ class SkinNode(Node):
                 seq, self._taken = self._taken, self._taken + 1
             V = None
             try:
-                pipe, version, frame_id = self._configure(pipe, version)
+                pipe, config = self._configure(pipe, config)
                 self._pipes[w] = pipe
                 t0 = time.perf_counter()
                 V = pipe.deform(q)
@@ -391,7 +384,7 @@ class SkinNode(Node):
                     return
             try:
                 if V is not None:
-                    self._publish(w, V, stamp, frame_id, pipe, deform_ms, t_received)
+                    self._publish(w, V, stamp, config.frame_id, pipe, deform_ms, t_received)
             except Exception as e:  # noqa: BLE001
                 if not self._stopping:
                     self._count_failure()
@@ -462,7 +455,7 @@ class SkinNode(Node):
         """Stop the workers and join them (each finishes the frame it is on).
 
         A worker must not outlive the node (it would publish through destroyed
-        publishers) nor the interpreter (see :class:`SpinThread`); a frame is
+        publishers) nor the interpreter (see :class:`skin_node.processes.SpinThread`); a frame is
         short, so the join is not cut short.
         """
         with self._cond:
@@ -470,137 +463,6 @@ class SkinNode(Node):
             self._cond.notify_all()
         for t in self._workers:
             t.join()
-
-
-_SETTING_UP = threading.Event()
-
-
-def _on_signal(signum, frame) -> None:
-    if _SETTING_UP.is_set():
-        raise KeyboardInterrupt
-
-
-def init_ros(args: list | None) -> None:
-    """``rclpy.init`` with SIGINT and SIGTERM handled in two phases.
-
-    rclpy's handlers shut the context down, which ends ``spin``, and then chain
-    to the Python handler installed here. That one raises KeyboardInterrupt only
-    inside :func:`setting_up` (long numpy/numba set-up never reaches ``spin``);
-    afterwards it does nothing, so no interrupt can land in the middle of a
-    clean shutdown.
-    """
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, _on_signal)
-    rclpy.init(args=args)
-
-
-@contextlib.contextmanager
-def setting_up():
-    """Inside this block SIGINT/SIGTERM raise KeyboardInterrupt (see :func:`init_ros`)."""
-    _SETTING_UP.set()
-    try:
-        yield
-    finally:
-        _SETTING_UP.clear()
-
-
-def spin_until_shutdown(node: Node, future: Future | None = None) -> None:
-    """Spin ``node`` until ``future`` is done or the context shuts down.
-
-    A signal can shut the context down while rclpy builds its next wait set,
-    which then raises instead of ExternalShutdownException: after a shutdown
-    any such error is the normal way out, not a failure.
-    """
-    try:
-        if future is None:
-            rclpy.spin(node)
-        else:
-            rclpy.spin_until_future_complete(node, future)
-    except ExternalShutdownException:
-        pass
-    except Exception:
-        if node.context.ok():
-            raise
-
-
-class SpinThread:
-    """An executor spinning in a thread of its own, stopped in order.
-
-    For a tool whose main thread has other work (pacing a playback, feeding a
-    benchmark). Such a thread must never outlive ``main``: at interpreter exit
-    Python ends a still-running thread with ``pthread_exit`` when it next takes
-    the GIL, and for one coming back from rclpy's wait the unwind crosses a
-    ``noexcept`` C++ frame of rclpy, so ``std::terminate`` aborts the process
-    ("terminate called without an active exception", SIGABRT) after all else
-    went right. ``Executor.shutdown`` neither joins the thread nor (Jazzy)
-    waits for a running callback. So :meth:`stop` ends the spin, joins the
-    thread, and only then shuts the executor down; as a context manager, every
-    way out of the block does that.
-
-    Parameters
-    ----------
-    executor : rclpy.executors.Executor
-        With its nodes added; this thread is the only one that spins it.
-    name : str
-        The thread's name.
-    """
-
-    def __init__(self, executor, name: str = "spin") -> None:
-        self.executor = executor
-        self._done = Future()
-        self._error: BaseException | None = None
-        self._thread = threading.Thread(target=self._spin, name=name)
-
-    def _spin(self) -> None:
-        try:
-            self.executor.spin_until_future_complete(self._done)
-        except ExternalShutdownException:
-            pass                    # the context was shut down (a signal): the way out
-        except BaseException as e:  # noqa: BLE001 - stop() raises it in the main thread
-            if self.executor.context.ok():
-                self._error = e
-
-    def start(self) -> "SpinThread":
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        """Stop spinning once the running callback (if any) returns, join the
-        thread, shut the executor down; then raise what a callback raised."""
-        self._done.set_result(True)     # its done callback wakes the executor's wait
-        if self._thread.ident is not None:
-            self._thread.join()
-        self.executor.shutdown()
-        error, self._error = self._error, None
-        if error is not None:
-            raise error
-
-    def __enter__(self) -> "SpinThread":
-        return self.start()
-
-    def __exit__(self, *exc) -> None:
-        self.stop()
-
-
-def build(name: str, factory):
-    """Run ``factory()`` (a node's whole set-up) as a console script should.
-
-    Returns ``(node, None)``, or ``(None, exit_code)``: 0 when SIGINT/SIGTERM
-    arrived during set-up, 2 after printing one line ``<name>: error: ...``
-    (never a bare traceback) for a bad parameter, file or any other failure.
-    """
-    try:
-        with setting_up():
-            return factory(), None
-    except KeyboardInterrupt:
-        rclpy.try_shutdown()
-        return None, 0
-    except (ValueError, OSError, ParameterException) as e:
-        print(f"{name}: error: {e}", file=sys.stderr)
-    except Exception as e:  # noqa: BLE001 - one line, not a traceback, for any set-up failure
-        print(f"{name}: error: {type(e).__name__}: {e}", file=sys.stderr)
-    rclpy.try_shutdown()
-    return None, 2
 
 
 def main(args: list | None = None) -> int:

@@ -9,13 +9,14 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from .skeleton import forward_kinematics
 from .stages.base import Frame, Stage
+from .kernels.pose import pose_frame
+from .kernels.solver import CONSTRAINTS
 from .rigging.build import WEIGHT_SCHEMES
 from .stages.collision import Collision
 from .stages.contact import Contact
 from .stages.mush import Mush
-from .stages.pbd import CONSTRAINTS, PBD
+from .stages.pbd import PBD
 from .stages.shape import Bulge, Inflate
 from .stages.skinning import DQS, LBS
 from .stages.smooth import Smooth
@@ -220,25 +221,6 @@ def default_params() -> dict:
             for k, s in PIPELINE_PARAMS.items()}
 
 
-@numba.njit(cache=True, nogil=True)
-def _pose_frame(q, parents, offsets, rest_rotations, bind_inv, threshold, band, seg_joint,
-                segA, segB, G, M, angles, fade, A, B):
-    """What a frame needs of the pose alone, in one call (a dozen small numpy
-    calls cost a quarter of a millisecond between the big kernels): forward
-    kinematics, each joint's fade (0 below ``threshold``, rising to 1 over
-    ``band`` radians; 0 for roots) and the posed bone segments."""
-    forward_kinematics(q, parents, offsets, rest_rotations, bind_inv, G, M, angles)
-    for j in range(parents.shape[0]):
-        fade[j] = 0.0 if parents[j] < 0 else min(1.0, max(0.0, (angles[j] - threshold) / band))
-    for s in range(seg_joint.shape[0]):
-        j = seg_joint[s]
-        for r in range(3):
-            A[s, r] = (M[j, r, 0] * segA[s, 0] + M[j, r, 1] * segA[s, 1]
-                       + M[j, r, 2] * segA[s, 2] + M[j, r, 3])
-            B[s, r] = (M[j, r, 0] * segB[s, 0] + M[j, r, 1] * segB[s, 1]
-                       + M[j, r, 2] * segB[s, 2] + M[j, r, 3])
-
-
 class Pipeline:
     """Stages built from names, run in order on every pose.
 
@@ -317,9 +299,9 @@ class Pipeline:
         J = skel.n_joints
         G, M, angles, fade = np.empty((J, 4, 4)), np.empty((J, 4, 4)), np.empty(J), np.empty(J)
         A, B = np.empty_like(self._segA), np.empty_like(self._segB)
-        _pose_frame(q, self._parents, skel.offsets, skel.rest_rotations, skel.bind_inv,
-                    float(self.params["active_threshold"]), float(self.params["active_fade"]),
-                    self._seg_joint, self._segA, self._segB, G, M, angles, fade, A, B)
+        pose_frame(q, self._parents, skel.offsets, skel.rest_rotations, skel.bind_inv,
+                   float(self.params["active_threshold"]), float(self.params["active_fade"]),
+                   self._seg_joint, self._segA, self._segB, G, M, angles, fade, A, B)
         bent = fade > 0.0
         s, t, sb, tb = self._buf
         return Frame(q=q, G=G, M=M, bent=bent, fade=fade, angles=angles, surface=s, tet=t,
@@ -349,6 +331,47 @@ class Pipeline:
         self.counts = fr.counts
         self._last_frame = fr
         return out
+
+    def warm_up(self, poses=()) -> float:
+        """Deform the poses that run every kernel the stages use, so that numba
+        compiling them (or loading them from its cache) and the stages' lazy
+        set-up land here and not in a real frame; then forget the state carried
+        between frames (:meth:`set_params`). Returns the seconds it took.
+
+        Bent joints wake the solver and collision stages, and joints at their
+        limits fold skin through skin (push-out, rechecks): the middle of the
+        skeleton's limits (limits of +-pi, a glTF skeleton's, have it at rest),
+        every channel bent by 1 rad within its limits and every channel at its
+        upper limit, with the volume stage's checked swelling forced on (it
+        runs only where a region stays short); then ``poses`` (a motion's own,
+        say) and the rest pose, with the parameters as they are.
+
+        Raises
+        ------
+        ValueError
+            When a warm-up pose deforms to non-finite vertices.
+        """
+        limits = self.character.skeleton.limits
+        root = np.zeros(3)
+        bent = [np.concatenate([root, limits.mean(axis=-1).ravel()]),
+                np.concatenate([root, np.clip(1.0, limits[..., 0], limits[..., 1]).ravel()]),
+                np.concatenate([root, limits[..., 1].ravel()])]
+        checked = self.params["volume_checked_below"]
+        t0 = time.perf_counter()
+        try:
+            self.set_params(volume_checked_below=0.0)
+            for q in bent:
+                self._warm(q)
+        finally:
+            self.set_params(volume_checked_below=checked)
+        for q in [*poses, self.character.skeleton.rest_pose()]:
+            self._warm(q)
+        self.set_params()
+        return time.perf_counter() - t0
+
+    def _warm(self, q: np.ndarray) -> None:
+        if not np.all(np.isfinite(self.deform(q))):
+            raise ValueError("warm-up pose deforms to non-finite vertices")
 
     def _tet_rows(self, fr: Frame) -> np.ndarray | None:
         """The tet-mesh vertices the stages after skinning use in ``fr``."""

@@ -26,7 +26,8 @@ from sensor_msgs.msg import JointState
 from msg_adapters import channels_to_joint_state, load_name_map
 from skin_node.motion import FPS, character_skeleton, clip_names  # noqa: F401 (re-exported)
 from skin_node.motion import load_motion as _load_clip
-from skin_node.node import QOS_JOINT_STATES, build, init_ros, spin_until_shutdown
+from skin_node.node import QOS_JOINT_STATES
+from skin_node.processes import build, init_ros, spin_until_shutdown
 
 
 def load_motion(character: str, clip: str = "", bvh: str = "", mapping: str = "",

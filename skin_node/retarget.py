@@ -46,6 +46,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from skin_node.io.bvh import Bvh
 from skin_node.skeleton import Skeleton, euler_xyz_to_matrix, matrix_to_euler_xyz
@@ -156,7 +157,6 @@ def load_mapping(path: str | Path, skeleton: Skeleton | None = None,
     dict
         The mapping, with ``_file`` set to ``str(path)`` for later messages.
     """
-    import yaml  # only needed here
 
     path = Path(path)
     try:

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numba as nb
 import numpy as np
 
 ROOT_CHANNELS = ("root_tx", "root_ty", "root_tz")
@@ -55,44 +54,6 @@ def matrix_to_euler_xyz(R: np.ndarray) -> np.ndarray:
         rx = np.where(lock, np.arctan2(s * R[..., 0, 1], R[..., 1, 1]), rx)
         rz = np.where(lock, 0.0, rz)
     return np.stack([rx, ry, rz], axis=-1)
-
-
-@nb.njit(cache=True, nogil=True)
-def forward_kinematics(q, parents, offsets, rest_rotations, bind_inv, G, M, angles):
-    """World matrices ``G``, skinning matrices ``M = G inv(B)`` and each joint's
-    pose rotation angle, in one pass over the joints (parents first)."""
-    J = parents.shape[0]
-    L = np.zeros((4, 4))
-    L[3, 3] = 1.0
-    for j in range(J):
-        rx, ry, rz = q[3 + 3 * j], q[4 + 3 * j], q[5 + 3 * j]
-        cx, cy, cz = np.cos(rx), np.cos(ry), np.cos(rz)
-        sx, sy, sz = np.sin(rx), np.sin(ry), np.sin(rz)
-        R = np.empty((3, 3))
-        R[0, 0], R[0, 1], R[0, 2] = cz * cy, cz * sy * sx - sz * cx, cz * sy * cx + sz * sx
-        R[1, 0], R[1, 1], R[1, 2] = sz * cy, sz * sy * sx + cz * cx, sz * sy * cx - cz * sx
-        R[2, 0], R[2, 1], R[2, 2] = -sy, cy * sx, cy * cx
-        c = (R[0, 0] + R[1, 1] + R[2, 2] - 1.0) * 0.5
-        angles[j] = np.arccos(min(1.0, max(-1.0, c)))
-        for r in range(3):
-            for k in range(3):
-                L[r, k] = (R[r, 0] * rest_rotations[j, 0, k] + R[r, 1] * rest_rotations[j, 1, k]
-                           + R[r, 2] * rest_rotations[j, 2, k])
-            L[r, 3] = offsets[j, r]
-        p = parents[j]
-        if p < 0:
-            for r in range(3):
-                L[r, 3] += q[r]
-            G[j] = L
-        else:
-            for r in range(4):
-                for k in range(4):
-                    G[j, r, k] = (G[p, r, 0] * L[0, k] + G[p, r, 1] * L[1, k]
-                                  + G[p, r, 2] * L[2, k] + G[p, r, 3] * L[3, k])
-        for r in range(4):
-            for k in range(4):
-                M[j, r, k] = (G[j, r, 0] * bind_inv[j, 0, k] + G[j, r, 1] * bind_inv[j, 1, k]
-                              + G[j, r, 2] * bind_inv[j, 2, k] + G[j, r, 3] * bind_inv[j, 3, k])
 
 
 @dataclass

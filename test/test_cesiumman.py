@@ -17,7 +17,7 @@ from skin_node import Pipeline, load_character  # noqa: E402
 from skin_node.io.bvh import load_bvh  # noqa: E402
 from skin_node.metrics import region_volume  # noqa: E402
 from skin_node.retarget import axis_conversion, load_mapping, retarget_bvh  # noqa: E402
-from skin_node.stages.collision import JointRegions, count_crossings  # noqa: E402
+from skin_node.rigging.regions import JointRegions, count_crossings  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"

@@ -9,9 +9,9 @@ import pytest
 
 from skin_node.builtin.characters import make_humanoid
 from skin_node.builtin.quadruped import quadruped_walk
-from skin_node.io.character_file import CharacterFileError, load_character_file
-from skin_node.rigging.embed import (EmbeddingError, embed_skeleton, fit_template,
-                                     load_embedded, load_template, read_closed_mesh,
+from skin_node.character import load_embedded
+from skin_node.io.character_file import CharacterFileError, load_character_file, read_closed_mesh
+from skin_node.rigging.embed import (EmbeddingError, embed_skeleton, fit_template, load_template,
                                      surface_distance, winding_numbers)
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -134,7 +134,7 @@ def test_spot_joints_inside_symmetric_and_legs_in_legs(spot):
 
 def test_spot_walks_without_crossings():
     from skin_node.pipeline import Pipeline
-    from skin_node.stages.collision import JointRegions, count_crossings
+    from skin_node.rigging.regions import JointRegions, count_crossings
     ch = load_embedded(_need(SPOT), "quadruped", tet_count=6000, progress=False)
     frames = quadruped_walk(ch.skeleton)
     assert frames.shape == (240, ch.n_channels)

@@ -10,8 +10,8 @@ import trimesh
 
 from skin_node.kernels.constraints import (bind_constraint, contact_constraint,
                                            energy_constraint, energy_value,
-                                           stretch_constraint, tet_volume, volume_constraint,
-                                           zone_volume_constraint)
+                                           stretch_constraint, tet_volume, volume_constraint)
+from skin_node.kernels.solver import zone_volume_sweep as zone_volume_constraint
 from skin_node.rigging.tetra import lattice_tets, signed_volumes
 
 SCALE = 0.02          # tet edge length, metres (the arm rig's order of size)
@@ -718,7 +718,7 @@ def test_laplacian_smooth_is_jacobi_on_the_chosen_vertices_only(relative):
     """On an icosphere: ``p <- (1-k) p + k mean(one ring)`` for the chosen
     vertices, all from the last pass's values, of positions or of ``X - base``;
     every other vertex keeps its place."""
-    from skin_node.kernels.solver import laplacian_smooth, ring_layout
+    from skin_node.kernels.smoothing import laplacian_smooth, ring_layout
     m = trimesh.creation.icosphere(subdivisions=3)
     rng = np.random.default_rng(4)
     base = np.array(m.vertices)

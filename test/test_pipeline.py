@@ -10,7 +10,7 @@ import pytest
 
 from skin_node import DEFAULT_STAGES, Pipeline, load_character
 from skin_node.metrics import mesh_volume, roughness
-from skin_node.stages.collision import JointRegions, count_crossings
+from skin_node.rigging.regions import JointRegions, count_crossings
 
 #: The tet solve with the paper's collision stage (extended) and the joint
 #: volume stage after it: the stages these tests check, as a pipeline, on the
@@ -361,7 +361,7 @@ def test_two_thread_solve_splits_into_slabs_that_share_no_vertex(arm):
     running them one after the other gives."""
     import numba
     from skin_node.kernels import solver
-    from skin_node.stages.pbd import BIND, ENERGY, STRETCH, VOLUME
+    from skin_node.kernels.solver import BIND, ENERGY, STRETCH, VOLUME
     pipe = Pipeline(arm, ["dqs", "pbd"], threads=2, solve_slabs=True)
     pipe.deform(arm.pose(elbow_rz=np.radians(120)))
     pbd, r = pipe.stages[1], arm.rig

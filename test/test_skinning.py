@@ -4,10 +4,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from skin_node.character import load_character
-from skin_node.kernels import solver
+from skin_node.kernels import skinning as solver
 from skin_node.pipeline import Pipeline
 from skin_node.skeleton import Skeleton, euler_xyz_to_matrix, matrix_to_euler_xyz
-from skin_node.stages.skinning import matrices_to_dual_quaternions
+from skin_node.kernels.skinning import matrices_to_dual_quaternions
 
 
 @pytest.fixture(scope="module")

@@ -13,10 +13,9 @@ from skin_node.kernels.bvh import closest, crossings, inside, mesh_tree
 from skin_node.kernels.contact import field_at, skinned_field
 from skin_node.kernels.intersect import SelfIntersections
 from skin_node.kernels.raster import render
-from skin_node.kernels.smoothing import restore_detail, vertex_faces
-from skin_node.kernels.solver import laplacian_smooth, ring_layout
+from skin_node.kernels.smoothing import laplacian_smooth, restore_detail, ring_layout, vertex_faces
 from skin_node.metrics import SurfaceQuality, weight_jumps
-from skin_node.stages.skinning import matrices_to_dual_quaternions
+from skin_node.kernels.skinning import matrices_to_dual_quaternions
 
 
 @pytest.fixture(scope="module")

@@ -16,7 +16,6 @@ import numpy as np
 
 from skin_node import Pipeline, load_character, make_clip
 from skin_node.kernels.intersect import SelfIntersections
-from skin_node.stages.collision import JointRegions
 
 
 def main() -> None:
@@ -30,7 +29,7 @@ def main() -> None:
     a = ap.parse_args()
     kw = {} if a.surface_vertices is None else {"surface_vertices": a.surface_vertices}
     ch = load_character(a.character, progress=False, **kw)
-    regions = JointRegions(ch)
+    regions = ch.regions()
     count = SelfIntersections(ch.V, ch.F, 3.0 * regions.edge)
     in_region = (ch.rig.region[ch.F] >= 0).any(axis=1)          # per triangle
     if a.clip:

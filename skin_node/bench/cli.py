@@ -28,15 +28,22 @@ import os
 import platform
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from . import charts
+from ..motion import GLTF_PREFIX, file_animations, file_clip
 from ..pipeline import STAGE_NAMES
+from .export_memory import export_memory_line, run_export_memory
 from .measure import (JITTER_FRAMES, Motion, Progress, expand_methods, expand_scenes,
                       load_scene, make_motion, memory_profile, parse_method, run_method)
+from .pictures import closeups
+from .ros_latency import latency_line, main as ros_main, measure_latency
+from .stability import CASES, stability_map
 
 DEFAULT_PIPELINES = "lbs,dqs,pbs,paper,default"
 DEFAULT_CLIPS = {"arm": ["elbow_bend", "wrist_twist"], "humanoid": ["walk", "squat"]}
@@ -88,7 +95,6 @@ def write_json(obj, path: Path) -> Path:
 
 def environment() -> dict:
     """What the figures were measured on."""
-    import numba
     env = {"python": platform.python_version(), "numpy": np.__version__,
            "numba": numba.__version__, "machine": platform.machine(),
            "cpus": os.cpu_count(), "numba_threads": numba.config.NUMBA_NUM_THREADS,
@@ -111,7 +117,6 @@ def environment() -> dict:
 def scene_clips(character: str) -> list:
     """The clips a scene runs when none are named: a glTF character's own
     animations (``gltf:NAME``), else the character's built-in ones."""
-    from ..motion import GLTF_PREFIX, file_animations
     own = [GLTF_PREFIX + a for a in file_animations(character)]
     return own or DEFAULT_CLIPS.get(character, ["walk"])
 
@@ -121,7 +126,6 @@ def motion(name: str, character_spec: str, ch, steps: int = 37, stride: int = 1,
     """:func:`~skin_node.bench.measure.make_motion`, or a glTF character's own
     animation (``NAME`` or ``gltf:NAME``, sampled at 120 Hz like the built-in
     clips, named ``gltf:NAME`` in the results)."""
-    from ..motion import GLTF_PREFIX, file_clip
     clip = file_clip(character_spec, name)
     if clip is None:
         return make_motion(name, ch, steps=steps, stride=stride, max_frames=max_frames)
@@ -343,7 +347,6 @@ def ablation_table(runs: list) -> str:
 # ----------------------------------------------------------------- stability
 def run_stability(pipelines, scene="arm:2000", long_frames=100_000, jitter_frames=1000,
                   cases=None, out: Path | None = None, progress=True) -> list:
-    from .stability import CASES, stability_map
     res = stability_map(pipelines, scene, cases or CASES, long_frames=long_frames,
                         jitter_frames=jitter_frames, progress=progress)
     if out is not None:
@@ -366,8 +369,6 @@ def run_memory(scene="humanoid:24000", frames=3000, every=250, out: Path | None 
     every later start does. The figures then do not depend on what the user's
     cache happened to hold."""
     if fresh:
-        import tempfile
-
         def one(n, env):
             cmd = [sys.executable, "-m", "skin_node.bench.cli", "memory", "--in-process",
                    "--scene", str(scene), "--frames", str(n), "--every", str(every),
@@ -446,7 +447,6 @@ def report(out: Path, quick: bool = False, ros: bool = True, progress: bool = Tr
     lats = []
     if ros:
         try:
-            from .ros_latency import measure_latency
             # one worker (the node's default) and two (config/humanoid.yaml)
             for workers in (1, 2):
                 lats.append(measure_latency(seconds=5 if quick else 10,
@@ -456,7 +456,6 @@ def report(out: Path, quick: bool = False, ros: bool = True, progress: bool = Tr
             write_json(lats, out / "ros_latency.json")
         except Exception as e:  # noqa: BLE001 - ROS may be missing; the rest still stands
             print(f"skin_bench: ros-latency skipped: {type(e).__name__}: {e}", file=sys.stderr)
-    from .pictures import closeups
     closeups(out / "closeups.png", quick=quick)
     write_json(against_dqs(main["runs"]), out / "against_dqs.json")
     md = ["## Benchmark summary", "",
@@ -481,20 +480,6 @@ def report(out: Path, quick: bool = False, ros: bool = True, progress: bool = Tr
     text = "\n".join(md) + "\n"
     (out / "summary.md").write_text(text)
     return text
-
-
-def latency_line(lat: dict) -> str:
-    scene = (f"{lat['character']}:{lat['surface_vertices']}" if lat["surface_vertices"] else
-             f"{Path(lat['character']).name}, {lat.get('weights', 'automatic')} weights")
-    if lat.get("motion", "built-in") != "built-in":
-        scene += f", {Path(lat['motion']).name}"
-    return (f"ROS latency ({scene}, {lat['rate_hz']:.0f} Hz "
-            f"for {lat['seconds']:.0f} s): p50 {lat['latency_ms_p50']:.1f} ms, p99 "
-            f"{lat['latency_ms_p99']:.1f} ms, {lat['outputs']} outputs for {lat['inputs']} inputs, "
-            f"node skipped {lat['skipped_stale']} as stale"
-            + (f", node resident {lat['node_rss_mb']:.0f} MB"
-               if np.isfinite(lat.get("node_rss_mb", np.nan)) else "")
-            + (f" ({', '.join(lat['params'])})" if lat.get("params") else ""))
 
 
 # ----------------------------------------------------------------------- CLI
@@ -581,7 +566,6 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "ros-latency":
-        from .ros_latency import main as ros_main
         return ros_main(argv[1:])
     if not argv or argv[0].startswith("-") and argv[0] not in ("-h", "--help"):
         argv = ["run"] + argv
@@ -622,14 +606,12 @@ def main(argv: list | None = None) -> int:
             print(memory_line(mem))
             return 0 if mem["flat"] else 1
         elif a.cmd == "export-memory":
-            from .export_memory import export_memory_line, run_export_memory
             res = run_export_memory(a.character, a.frames, a.bvh, a.clip, _list(a.outputs),
                                     a.out, a.keep)
             print(export_memory_line(res))
             for line in res["lines"]:
                 print("  " + line)
         elif a.cmd == "pictures":
-            from .pictures import closeups
             print(closeups(a.out, methods=_pipelines(a.pipelines), quick=a.quick))
         elif a.cmd == "report":
             print(report(a.out, quick=a.quick, ros=not a.no_ros, progress=prog))

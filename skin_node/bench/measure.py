@@ -7,10 +7,11 @@ Scene
 Timing
     ``pipe.timings`` of every frame (ms per stage and ``total``), reported as
     median (p50) and 90th percentile (p90). Before the timed frames the pipeline
-    deforms a few warm-up poses (rest, first, deepest and last frame of the
-    motion) so numba compilation or cache loading never lands in a timed frame;
-    that warm-up time and the set-up time (character + rig load, pipeline
-    construction) are reported apart, in seconds.
+    warms up as the node does (:meth:`skin_node.Pipeline.warm_up`: poses at and
+    within the joints' limits, then the motion's first, deepest and last frame
+    and rest) so numba compilation or cache loading never lands in a timed
+    frame; that warm-up time and the set-up time (character + rig load,
+    pipeline construction) are reported apart, in seconds.
 ``volume_ratio``
     Enclosed volume of the deformed surface over the rest volume.
 ``region_volume_ratio``
@@ -27,7 +28,7 @@ Timing
     bulge. Skin pressed flat where two limbs touch also reads as negative.
 ``crossings``
     Joint-region vertices that have passed through the skin
-    (:func:`skin_node.stages.collision.count_crossings`).
+    (:func:`skin_node.rigging.regions.count_crossings`).
 ``intersections`` / ``crumples`` / ``pairs``
     Pairs of triangles of the whole surface that pass through each other,
     found exactly (:class:`skin_node.kernels.intersect.SelfIntersections`),
@@ -74,13 +75,14 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+import psutil
 
 from .. import default_clip_name, load_character, make_clip
 from ..kernels.intersect import SelfIntersections
 from ..metrics import SurfaceQuality, mesh_volume, region_volume, weight_jumps
 from ..pipeline import PRESETS, STAGE_NAMES, Pipeline
-from ..stages.collision import JointRegions, count_crossings
-from ..rigging.weights import segment_distance
+from ..rigging.regions import RegionSearch, count_crossings
+from ..rigging.weights import point_segment_distance, segment_distance
 
 #: Skinning-only stages: iterations, tets and active_threshold do not change their result.
 SKIN_ONLY = {"lbs", "dqs"}
@@ -326,7 +328,8 @@ class SceneMetrics:
         skel, r = ch.skeleton, ch.rig
         self.F = ch.F
         self.V0 = mesh_volume(ch.V, ch.F)
-        self.regions = JointRegions(ch)
+        self.regions = ch.regions()
+        self.search = RegionSearch(self.regions)
         self.intersections = SelfIntersections(ch.V, ch.F, 3.0 * self.regions.edge)
         self.surface = SurfaceQuality(ch.V, ch.F)
         # joint-region volumes at rest, about each joint's rest position
@@ -337,9 +340,7 @@ class SceneMetrics:
                             for j in self.region_joints}
         # radial-deviation proxy: nearest rest bone segment and rest distance
         seg_joint, A, B = skel.bone_segments()
-        D = np.stack([segment_distance(ch.V, np.broadcast_to(A[s], ch.V.shape),
-                                       np.broadcast_to(B[s], ch.V.shape))
-                      for s in range(len(A))], axis=1)
+        D = point_segment_distance(ch.V, A, B)
         self.seg = np.argmin(D, axis=1)
         self.r0 = D[np.arange(len(ch.V)), self.seg]
         # joint-region roughness, as metrics.roughness, with the index arrays built once
@@ -382,8 +383,8 @@ class SceneMetrics:
             j = int(self.region_joints[np.argmax(frame.angles[self.region_joints])])
             out["region_joint"] = self.character.skeleton.names[j]
             out["region_volume_ratio"] = self.region_ratio(V, frame.G, j)
-        out["crossings"] = (count_crossings(V, self.character.V, self.F, frame.M, self.regions)
-                            if crossings else np.nan)
+        out["crossings"] = (count_crossings(V, self.character.V, self.F, frame.M, self.regions,
+                                            search=self.search) if crossings else np.nan)
         out["intersections"], out["crumples"] = (self.intersections(V) if crossings
                                                  else (np.nan, np.nan))
         out["pairs"] = out["intersections"] + out["crumples"]
@@ -422,16 +423,12 @@ class RunResult:
     summary: dict = field(default_factory=dict)
 
 
-def _warm_up(pipe: Pipeline, frames: np.ndarray, character) -> float:
-    """Deform rest, first, deepest and last pose; the seconds it took."""
-    skel = character.skeleton
+def _warm_up(pipe: Pipeline, frames: np.ndarray) -> float:
+    """:meth:`Pipeline.warm_up` with the first, deepest and last pose of
+    ``frames`` too; the seconds it took."""
+    skel = pipe.character.skeleton
     depth = [skel.joint_angles(q).max() for q in frames]
-    t0 = time.perf_counter()
-    for q in (skel.rest_pose(), frames[0], frames[int(np.argmax(depth))], frames[-1]):
-        pipe.deform(q)
-    dt = time.perf_counter() - t0
-    pipe.set_params()                 # forget state carried between frames
-    return dt
+    return pipe.warm_up((frames[0], frames[int(np.argmax(depth))], frames[-1]))
 
 
 def run_method(method: Method, scene: Scene, motion: Motion, reference: bool = True,
@@ -456,7 +453,7 @@ def run_method(method: Method, scene: Scene, motion: Motion, reference: bool = T
     t0 = time.perf_counter()
     pipe = method.build(ch)
     build_s = time.perf_counter() - t0
-    warm_s = _warm_up(pipe, motion.frames, ch)
+    warm_s = _warm_up(pipe, motion.frames)
     skel = ch.skeleton
     T = len(motion.frames)
     depth = np.array([skel.joint_angles(q).max() for q in motion.frames])
@@ -468,7 +465,7 @@ def run_method(method: Method, scene: Scene, motion: Motion, reference: bool = T
         rscene = reference_scene(scene)
         rch, _ = load_scene(rscene)
         ref_pipe = method.with_params(label=False, iterations=60, active_threshold=0.0).build(rch)
-        ref_warm = _warm_up(ref_pipe, motion.frames[:1], rch)
+        ref_warm = _warm_up(ref_pipe, motion.frames[:1])
     rows, times = [], {}
     for t, q in enumerate(motion.frames):
         V = pipe.deform(q)
@@ -603,7 +600,6 @@ def memory_profile(scene="humanoid:24000", frames: int = 3000, every: int = 250,
     Returns start (after imports), after set-up, after warm-up, peak, end (MB),
     the samples, and ``flat``: ``(end - after_warmup) / after_warmup < 10%``.
     Run it in a fresh process (``skin_bench memory`` does) for clean figures."""
-    import psutil
     proc = psutil.Process()
     rss = lambda: proc.memory_info().rss / 2**20  # noqa: E731
     start = rss()
@@ -613,7 +609,7 @@ def memory_profile(scene="humanoid:24000", frames: int = 3000, every: int = 250,
     setup = rss()
     clip = clip or default_clip_name(ch.name)
     Q = make_motion(clip, ch).frames
-    warm_s = _warm_up(pipe, Q, ch)
+    warm_s = _warm_up(pipe, Q)
     warm = rss()
     samples = [(0, warm)]
     bar = Progress(frames, f"memory {scene.label}", enabled=progress)

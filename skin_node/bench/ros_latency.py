@@ -21,8 +21,14 @@ import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
+
+from ..builtin.characters import BUILTIN_CHARACTERS
+from ..character import load_character
+from ..motion import load_motion
+from ..ros_domain import claim_domain
 
 
 def _rss_mb(pid: int) -> float:
@@ -43,6 +49,8 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     ``params``: more node parameters as ``name:=value`` (``threads:=2``).
     ``character`` may be a character file (``surface_vertices`` then does not
     apply); ``bvh``: play this BVH retargeted to it instead of the built-in clip."""
+    # deferred: rclpy, the ROS messages and the modules built on them are optional
+    # (skin_bench runs without ROS; this one subcommand needs it)
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
@@ -50,11 +58,8 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     from shape_msgs.msg import Mesh
 
     from msg_adapters import channels_to_joint_state, diagnostic_values, header_stamp_ns
-    from skin_node import load_character
-    from skin_node.builtin.characters import BUILTIN_CHARACTERS
-    from skin_node.node import QOS_JOINT_STATES, QOS_LATCHED, QOS_STREAM, SpinThread
-    from skin_node.processes import command, stop
-    from skin_node.ros_domain import claim_domain
+    from skin_node.node import QOS_JOINT_STATES, QOS_LATCHED, QOS_STREAM
+    from skin_node.processes import SpinThread, command, stop
 
     if domain is None:
         with claim_domain() as claim:           # held until the node is gone
@@ -69,8 +74,8 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
                        progress=False)
     else:
         surface_vertices = 0
-    from skin_node.player import load_motion
-    _, names, frames, _ = load_motion(character, bvh=bvh)
+    clip = load_motion(character, bvh=bvh)
+    names, frames = list(clip.channel_names), np.asarray(clip.frames)
     log = tempfile.NamedTemporaryFile("w+", suffix=".log", delete=False)
     extra = [a for p in (params or []) for a in ("-p", p)]
     extra += ["-p", f"surface_vertices:={surface_vertices}"] if builtin else []
@@ -157,6 +162,21 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
             "domain_id": domain, "params": list(params or [])}
 
 
+def latency_line(lat: dict) -> str:
+    """One line of a :func:`measure_latency` result (the report's and ``main``'s)."""
+    scene = (f"{lat['character']}:{lat['surface_vertices']}" if lat["surface_vertices"] else
+             f"{Path(lat['character']).name}, {lat.get('weights', 'automatic')} weights")
+    if lat.get("motion", "built-in") != "built-in":
+        scene += f", {Path(lat['motion']).name}"
+    return (f"ROS latency ({scene}, {lat['rate_hz']:.0f} Hz "
+            f"for {lat['seconds']:.0f} s): p50 {lat['latency_ms_p50']:.1f} ms, p99 "
+            f"{lat['latency_ms_p99']:.1f} ms, {lat['outputs']} outputs for {lat['inputs']} inputs, "
+            f"node skipped {lat['skipped_stale']} as stale"
+            + (f", node resident {lat['node_rss_mb']:.0f} MB"
+               if np.isfinite(lat.get("node_rss_mb", np.nan)) else "")
+            + (f" ({', '.join(lat['params'])})" if lat.get("params") else ""))
+
+
 def main(argv: list | None = None) -> int:
     ap = argparse.ArgumentParser(prog="skin_bench ros-latency", description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=10.0)
@@ -186,6 +206,5 @@ def main(argv: list | None = None) -> int:
         with open(a.out, "w") as f:
             f.write(text + "\n")
     print(text)
-    from .cli import latency_line
     print(latency_line(res))
     return 0

@@ -43,7 +43,7 @@ import numpy as np
 
 from .measure import (Method, Progress, Scene, inverted_tets, load_scene, make_motion,
                       parse_method, parse_scene, scene_metrics)
-from ..stages.collision import count_crossings
+from ..rigging.regions import count_crossings
 
 CASES = ("bend180", "twist360", "jumps", "jitter", "long")
 EXPLOSION_M = 0.5
@@ -119,7 +119,8 @@ def run_case(method: Method, scene: Scene, case: str, frames: int | None = None,
             if method.simulates:
                 inverted = max(inverted, inverted_tets(fr.tet, ch, skin_only=True))
                 inverted_all = max(inverted_all, inverted_tets(fr.tet, ch))
-            crossings = max(crossings, count_crossings(V, ch.V, ch.F, fr.M, metrics.regions))
+            crossings = max(crossings, count_crossings(V, ch.V, ch.F, fr.M, metrics.regions,
+                                                          search=metrics.search))
             pairs = max(pairs, len(metrics.intersections.pairs(V)))
             folds = max(folds, metrics.surface(V)["folds90"])
         if progress is not None:

@@ -487,6 +487,7 @@ def _humanoid_design():
 
 def _marching_cubes(field, h: float):
     """Mesh the zero set on a grid of spacing ``h``: (V (n,3), F (m,3)) raw."""
+    # deferred: scikit-image, only a mesh made afresh needs it (cached meshes do not)
     from skimage.measure import marching_cubes  # topologically consistent (Lewiner)
 
     lo = np.array([-0.16, -0.95, -0.06])

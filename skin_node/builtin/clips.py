@@ -10,8 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..skeleton import Skeleton
-
-FPS = 120.0
+from .channels import FPS, channel_setter
+from .quadruped import quadruped_walk
 
 
 @dataclass
@@ -43,16 +43,6 @@ def _ramp(T: int) -> np.ndarray:
     return 0.5 - 0.5 * np.cos(s)
 
 
-def _setter(skel: Skeleton, frames: np.ndarray):
-    index = {n: i for i, n in enumerate(skel.channel_names)}
-
-    def put(name: str, values) -> None:
-        if name not in index:
-            raise ValueError(f"clip needs channel '{name}', which this skeleton lacks")
-        frames[:, index[name]] = values
-    return put
-
-
 def _feet_on_ground(skel: Skeleton, frames: np.ndarray, feet=("l_ankle", "r_ankle")) -> None:
     """Lower or raise the root so the lower ankle stays at its rest height."""
     idx = [skel.index(f) for f in feet]
@@ -65,7 +55,7 @@ def _feet_on_ground(skel: Skeleton, frames: np.ndarray, feet=("l_ankle", "r_ankl
 def elbow_bend(skel: Skeleton, seconds: float = 3.0, degrees: float = 150.0) -> np.ndarray:
     T = int(seconds * FPS)
     frames = np.zeros((T, skel.n_channels))
-    put = _setter(skel, frames)
+    put = channel_setter(skel, frames)
     a = np.radians(degrees) * _ramp(T)
     if "elbow" in skel.names:
         put("elbow_rz", a)
@@ -78,7 +68,7 @@ def elbow_bend(skel: Skeleton, seconds: float = 3.0, degrees: float = 150.0) -> 
 def wrist_twist(skel: Skeleton, seconds: float = 3.0, degrees: float = 180.0) -> np.ndarray:
     T = int(seconds * FPS)
     frames = np.zeros((T, skel.n_channels))
-    put = _setter(skel, frames)
+    put = channel_setter(skel, frames)
     a = np.radians(degrees) * _ramp(T)
     if "wrist" in skel.names:
         put("wrist_rx", a)
@@ -92,7 +82,7 @@ def walk(skel: Skeleton, seconds: float = 4.0, cadence: float = 1.0) -> np.ndarr
     """A walk: legs swing with knee flexion in swing, arms hang and counter-swing."""
     T = int(seconds * FPS)
     frames = np.zeros((T, skel.n_channels))
-    put = _setter(skel, frames)
+    put = channel_setter(skel, frames)
     ph = 2.0 * np.pi * cadence * np.arange(T) / FPS
     for side, sgn, off in (("l", 1.0, 0.0), ("r", -1.0, np.pi)):
         p = ph + off
@@ -113,7 +103,7 @@ def squat(skel: Skeleton, seconds: float = 4.0, knee_degrees: float = 150.0) -> 
     """A deep squat: knees to ``knee_degrees``, hips flexed, heels down, arms forward."""
     T = int(seconds * FPS)
     frames = np.zeros((T, skel.n_channels))
-    put = _setter(skel, frames)
+    put = channel_setter(skel, frames)
     s = _ramp(T)
     k = np.radians(knee_degrees) * s
     for side, sgn in (("l", 1.0), ("r", -1.0)):
@@ -124,13 +114,6 @@ def squat(skel: Skeleton, seconds: float = 4.0, knee_degrees: float = 150.0) -> 
     put("spine_ry", 0.35 * s)
     _feet_on_ground(skel, frames)
     return frames
-
-
-def quadruped_walk(skel: Skeleton) -> np.ndarray:
-    """A four-beat walk for skeletons of the ``quadruped`` template (see
-    :mod:`skin_node.builtin.quadruped`)."""
-    from .quadruped import quadruped_walk as walk4      # that module builds on this one
-    return walk4(skel)
 
 
 CLIPS = {"elbow_bend": elbow_bend, "wrist_twist": wrist_twist, "walk": walk, "squat": squat,

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..skeleton import Skeleton
-from .clips import FPS, _setter
+from .channels import FPS, channel_setter
 
 #: Footfall order of a lateral-sequence walk (left hind, left fore, right hind,
 #: right fore), as fractions of the stride.
@@ -37,12 +37,12 @@ def quadruped_walk(skel: Skeleton, seconds: float = 2.0, cadence: float = 1.0,
     Returns
     -------
     (T, C) float
-        One pose per frame at :data:`~skin_node.builtin.clips.FPS` (120) frames
+        One pose per frame at :data:`~skin_node.builtin.channels.FPS` (120) frames
         per second, ``T = seconds * 120``, over ``skel.channel_names``.
     """
     T = int(round(seconds * FPS))
     frames = np.zeros((T, skel.n_channels))
-    put = _setter(skel, frames)
+    put = channel_setter(skel, frames)
     ph = 2.0 * np.pi * cadence * np.arange(T) / FPS
     legs = {"l_ankle": ("l_hip", "l_knee"), "r_ankle": ("r_hip", "r_knee"),
             "l_wrist": ("l_shoulder", "l_elbow"), "r_wrist": ("r_shoulder", "r_elbow")}

@@ -27,7 +27,7 @@ def typestore():
     """The ROS 2 Jazzy typestore (made once)."""
     global _TYPESTORE
     if _TYPESTORE is None:
-        from rosbags.typesys import Stores, get_typestore
+        from rosbags.typesys import Stores, get_typestore   # deferred: only bags need rosbags
         _TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
     return _TYPESTORE
 
@@ -66,7 +66,7 @@ class BagReader:
         self._reader = None
 
     def __enter__(self) -> "BagReader":
-        from rosbags.highlevel import AnyReader
+        from rosbags.highlevel import AnyReader         # deferred: only bags need rosbags
         try:
             self._reader = AnyReader(self.paths, default_typestore=typestore())
             self._reader.open()

@@ -61,6 +61,12 @@ from typing import Iterator
 
 import numpy as np
 
+from ..character import load_character
+from ..motion import GLTF_PREFIX, load_motion
+from ..pipeline import Pipeline
+from .bags import BagReader
+from .gltf import Y_UP_TO_Z_UP, _read_document, _Reader, load_gltf
+
 #: The project's z up to glTF's y up (inverse of :data:`skin_node.io.gltf.Y_UP_TO_Z_UP`).
 Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 #: Frames between saves of a binary USD file: each save appends, then frees, them.
@@ -166,7 +172,7 @@ class UsdPointCacheWriter(_Writer):
         if self.text:
             self._body = tempfile.TemporaryFile("w+", dir=self.path.parent, suffix=".usda.part")
             return
-        from pxr import Sdf, Usd, UsdGeom, Vt
+        from pxr import Sdf, Usd, UsdGeom, Vt    # deferred: usd-core, only binary USD needs it
         self._Vt = Vt
         self.path.unlink(missing_ok=True)
         self._stage = Usd.Stage.CreateNew(str(self.path))
@@ -199,7 +205,7 @@ class UsdPointCacheWriter(_Writer):
         if self.text:
             self._write_text()
         else:
-            from pxr import Gf
+            from pxr import Gf                   # deferred: usd-core, as above
             self._mesh.CreateExtentAttr(self._Vt.Vec3fArray([Gf.Vec3f(*self.lo),
                                                              Gf.Vec3f(*self.hi)]))
             self._stage.SetEndTimeCode(self.frames - 1)
@@ -258,7 +264,7 @@ def write_usd_point_cache(path: str | Path, frames: np.ndarray, faces: np.ndarra
 
 def read_usd_point_cache(path: str | Path) -> tuple[np.ndarray, np.ndarray, float]:
     """Read back :func:`write_usd_point_cache`'s file: (frames (T,n,3), faces (m,3), fps)."""
-    from pxr import Usd, UsdGeom
+    from pxr import Usd, UsdGeom                 # deferred: usd-core, only USD files need it
     path = Path(path)
     stage = Usd.Stage.Open(str(path))
     if stage is None:
@@ -468,7 +474,6 @@ def read_gltf_morph(path: str | Path) -> tuple[np.ndarray, np.ndarray, float]:
     Frame ``k`` is the first mesh node's translation and scale applied to its
     base plus its targets weighted by the animation's ``k``-th key.
     """
-    from .gltf import Y_UP_TO_Z_UP, _read_document, _Reader
     path = Path(path)
     g = _read_document(path)
     rd = _Reader(path, g)
@@ -505,7 +510,6 @@ def bag_points(path: str | Path, topic: str = "skin/points") -> tuple[Iterator, 
     of a bag (rosbag2 or ROS 1, :class:`~skin_node.io.bags.BagReader`), read one
     message at a time. The rate is the median rate of the messages' log times.
     """
-    from .bags import BagReader
     cloud = "sensor_msgs/msg/PointCloud2"
     with BagReader(path) as reader:
         stamps = [t for _, t, _ in reader.messages(cloud, topic)]
@@ -547,14 +551,12 @@ def read_bag_points(path: str | Path, topic: str = "skin/points") -> tuple[np.nd
 def deform_frames(character, frames: np.ndarray, pipeline: str = "default",
                   **params) -> Iterator[np.ndarray]:
     """(n, 3) surface of ``character`` for each pose of ``frames`` (T, C), one at a time."""
-    from ..pipeline import Pipeline
     pipe = Pipeline.preset(character, pipeline, **params)
     for q in frames:
         yield pipe.deform(q)
 
 
 def _load_motion(args, ch) -> tuple[str, np.ndarray, float]:
-    from ..motion import GLTF_PREFIX, load_motion
     clip = f"{GLTF_PREFIX}0" if args.clip == "file" else args.clip
     c = load_motion(args.character, clip, args.bvh, args.mapping, args.fps or None,
                     skeleton=ch.skeleton)
@@ -616,7 +618,6 @@ def main(argv: list[str] | None = None) -> int:
                 raise ValueError(f"{out}: unknown output type (use .usda, .usdc, .usd or .glb)")
         if args.step < 1:
             raise ValueError(f"--step must be >= 1, got {args.step}")
-        from ..character import load_character
         ch = load_character(args.character, weights=args.weights)
         if args.bag:
             frames, total, fps = bag_points(args.bag, args.topic)
@@ -639,7 +640,6 @@ def main(argv: list[str] | None = None) -> int:
         fps = fps / args.step
         faces, to_file = ch.F, (lambda X: X)
         if Path(args.character).suffix.lower() in (".glb", ".gltf"):
-            from .gltf import load_gltf
             g = load_gltf(args.character)
             faces, to_file = g.file_faces, g.to_file_order
         writers = [open_writer(out, faces, fps, ch.name, args.quantize) for out in args.output]

@@ -75,9 +75,13 @@ from pathlib import Path
 from urllib.parse import unquote
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from ..builtin.clips import Clip
-from ..skeleton import Skeleton
+from ..retarget import continuous_euler
+from ..skeleton import Skeleton, matrix_to_euler_xyz
 from .character_file import CharacterFileError, check_surface
 
 #: glTF world (y up) to the project's world (z up): +90 degrees about x.
@@ -315,7 +319,7 @@ class GltfCharacter:
 
 # ------------------------------------------------------------------ loading
 def _read_document(path: Path):
-    import pygltflib
+    import pygltflib            # deferred: only glTF files need it
     if not path.exists():
         _fail(path, "no such file")
     if path.stat().st_size == 0:
@@ -388,9 +392,6 @@ def _world_matrices(g, parent: np.ndarray, local: np.ndarray | None = None) -> n
 
 def _merge_by_position(V: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
     """(representative (n_file,) merged index, merged points) for points within ``tol``."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
     pairs = cKDTree(V).query_pairs(tol, output_type="ndarray")
     n = len(V)
     G = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
@@ -733,8 +734,6 @@ def gltf_clip(char: GltfCharacter, which: int | str = 0, fps: float = 30.0) -> G
     -------
     GltfClip
     """
-    from ..retarget import continuous_euler
-    from ..skeleton import matrix_to_euler_xyz
     g, path = char._gltf, char.path
     anims = g.animations or []
     names = char.animation_names

@@ -7,7 +7,7 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 
-from .solver import FAST
+from . import FAST
 
 
 @nb.njit(cache=True, nogil=True)
@@ -98,6 +98,44 @@ class TriangleTree(NamedTuple):
     tv: np.ndarray         # the triangles' vertices, sorted
     inc_ptr: np.ndarray    # CSR over ``tv``: the slots each vertex is a corner of
     inc: np.ndarray
+
+
+class RegionTest(NamedTuple):
+    """One joint region's crossing test in one pose, as :func:`crossed_at`,
+    :func:`resolve_region` and :func:`~skin_node.kernels.volume.swell_checked`
+    read it (each field's part in the test: :func:`crossed_vertices`)."""
+
+    X0: np.ndarray          # (n, 3) the rest surface
+    F: np.ndarray           # (m, 3) its triangles
+    M: np.ndarray           # (J, 4, 4) the pose's skinning matrices, C order
+    tri_bone: np.ndarray    # (m,) the bone that carries each triangle's rest normal
+    tri_normal: np.ndarray  # (m, 3) the triangles' rest unit normals
+    tree: TriangleTree      # over the region's triangles
+    tris: np.ndarray        # the region's triangles
+    tside: np.ndarray       # their sides
+    verts: np.ndarray       # the region's vertices
+    vside: np.ndarray       # their sides
+    R: np.ndarray           # (2,) each side's flesh radius about its bone
+    segA: np.ndarray        # (2, 3) starts of the posed bones (parent side's, child side's)
+    segB: np.ndarray        # (2, 3) their ends
+    rest_sep: float         # a triangle nearer a vertex than this at rest is its own skin
+    rest_tol: float         # how far behind a far triangle a vertex may sit at rest
+    reach: float            # how far the test looks for the other side's skin
+
+
+class FoldPlan(NamedTuple):
+    """How :func:`resolve_region` resolves a joint region's crossings."""
+
+    pj: np.ndarray          # (3,) the posed joint
+    pa: np.ndarray          # (3,) the far end of the bone to its parent
+    pb: np.ndarray          # (3,) the far end of its own bone (its child, or its tip)
+    passes: int             # detect-and-resolve rounds, at most
+    planar: bool            # a folding joint: project onto its fold plane first
+    paper: bool             # that plane through the farthest crossing (else the bisector)
+    upfront: bool           # project before the first detection (the bisector)
+    halfspace: bool         # also project the skin on the wrong side of the plane
+    pushout: bool           # push still-crossed skin out in front of what it crossed
+    eps: float              # moved skin ends this far on its own side
 
 
 def triangle_trees(X0: np.ndarray, F: np.ndarray, tris: np.ndarray,
@@ -282,40 +320,39 @@ def crossed_vertices(X, X0, F, verts, vside, tris, tree, fit, M, tri_bone, tri_n
     (len(verts),) int: the crossed triangle of each vertex, -2 for a deep
     vertex, or -1.
     """
-    lo, hi, tlo, thi, P = fit
     nv = verts.shape[0]
     out = -np.ones(nv, dtype=np.int64)
     if tris.shape[0] == 0 or nv == 0:
         return out
     for t in nb.prange(nth):
         # the index typed int64 whatever the caller: each type is another compile
-        _crossed_range(X, X0, F, verts, vside, tris, tree.roots, tree.child, tree.first,
-                       tree.count, tree.slot, tree.rcen, tree.tloc, tree.tcorner, P, lo, hi,
-                       tlo, thi, M, tri_bone, tri_normal, segA, segB, R, rest_sep, rest_tol,
-                       reach, hint, np.int64(t), nth, out)
+        _crossed_range(X, X0, F, verts, vside, tris, tree, fit, M, tri_bone, tri_normal, segA,
+                       segB, R, rest_sep, rest_tol, reach, hint, np.int64(t), nth, out)
     return out
 
 
 @nb.njit(cache=True, nogil=True)
-def crossed_at(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, verts, vside, R, segA,
-               segB, rest_sep, rest_tol, reach, hint, pos, nth):
-    """:func:`crossed_vertices` of ``verts[pos]`` (``pos``: positions into a
-    joint region's vertices ``verts``), the tree's boxes fit to ``X`` first
+def crossed_at(X, test, fit, refit, hint, pos, nth):
+    """:func:`crossed_vertices` of the region's vertices ``test.verts[pos]``
+    (:class:`RegionTest`), the tree's boxes ``fit`` fit to ``X`` first
     (:func:`fit_tree`: afresh with ``refit``, else grown where skin moved) and
     the region's ``hint`` (len(verts),) read and kept at ``pos``."""
-    fit_tree(X, tree, fit, refit)
+    fit_tree(X, test.tree, fit, refit)
     h = hint[pos]
-    out = crossed_vertices(X, X0, F, verts[pos], vside[pos], tris, tree, fit, M, tri_bone,
-                           tri_normal, segA, segB, R, rest_sep, rest_tol, reach, h, nth)
+    out = crossed_vertices(X, test.X0, test.F, test.verts[pos], test.vside[pos], test.tris,
+                           test.tree, fit, test.M, test.tri_bone, test.tri_normal, test.segA,
+                           test.segB, test.R, test.rest_sep, test.rest_tol, test.reach, h, nth)
     hint[pos] = h
     return out
 
 
 @nb.njit(cache=True, nogil=True, fastmath=FAST)
-def _crossed_range(X, X0, F, verts, vside, tris, roots, child, first, count, slot, rcen,
-                   tloc, tcorner, P, lo, hi, tlo, thi, M, tri_bone, tri_normal, segA, segB, R,
-                   rest_sep, rest_tol, reach, hint, first_v, step, out):
+def _crossed_range(X, X0, F, verts, vside, tris, tree, fit, M, tri_bone, tri_normal, segA, segB,
+                   R, rest_sep, rest_tol, reach, hint, first_v, step, out):
     """The per-vertex test of :func:`crossed_vertices` for ``verts[first_v::step]``."""
+    roots, child, first, count = tree.roots, tree.child, tree.first, tree.count
+    slot, rcen, tloc, tcorner = tree.slot, tree.rcen, tree.tloc, tree.tcorner
+    lo, hi, tlo, thi, P = fit
     sep2 = rest_sep * rest_sep
     stack = np.empty(128, dtype=np.int64)
     near = np.empty(128)                   # each stacked node's box distance, squared
@@ -680,11 +717,10 @@ def fold_plane(pj, pa, pb, q, paper):
 
 
 @nb.njit(cache=True, nogil=True)
-def resolve_region(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, tside, verts,
-                   vside, R, segA, segB, rest_sep, rest_tol, reach, hint, pos, passes,
-                   planar, paper, upfront, halfspace, pushout, pj, pa, pb, eps, nth):
-    """The collision stage on one joint region: up to ``passes`` rounds of
-    detection (:func:`crossed_vertices` over ``verts[pos]``) and resolution.
+def resolve_region(X, test, fit, refit, hint, pos, fold, nth):
+    """The collision stage on one joint region (:class:`RegionTest`): up to
+    ``fold.passes`` rounds of detection (:func:`crossed_vertices` over
+    ``test.verts[pos]``) and resolution as ``fold`` (:class:`FoldPlan`) says.
 
     A folding joint (``planar``) first has its crossed skin projected onto
     the plane of its fold (:func:`fold_plane` of ``pj``, ``pa``, ``pb``, then
@@ -694,11 +730,19 @@ def resolve_region(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, ts
     the farthest crossed vertex with ``paper``. Skin still crossed (creases the
     plane cannot part) is pushed out in front of the skin it crossed and the
     moves rechecked (:func:`push_and_recheck`), with ``pushout``. ``refit``:
-    fit the tree's boxes afresh first (the region's first test this frame),
-    else only grow them where skin moved. ``hint`` as in :func:`crossed_at`;
-    ``reach`` the test's, and the recheck's (:func:`push_and_recheck`).
-    Returns (the vertices moved, how many were projected onto the plane, how
-    many pushed out)."""
+    fit the tree's boxes ``fit`` afresh first (the region's first test this
+    frame), else only grow them where skin moved. ``hint`` as in
+    :func:`crossed_at`; the test's ``reach`` is the recheck's too
+    (:func:`push_and_recheck`). Returns (the vertices moved, how many were
+    projected onto the plane, how many pushed out)."""
+    X0, F, M, tri_bone, tri_normal, tree = (test.X0, test.F, test.M, test.tri_bone,
+                                            test.tri_normal, test.tree)
+    tside, verts, vside, R, segA, segB = (test.tside, test.verts, test.vside, test.R, test.segA,
+                                          test.segB)
+    reach = test.reach
+    pj, pa, pb, passes, planar, paper = (fold.pj, fold.pa, fold.pb, fold.passes, fold.planar,
+                                         fold.paper)
+    upfront, halfspace, pushout, eps = fold.upfront, fold.halfspace, fold.pushout, fold.eps
     nv = verts.shape[0]
     moved = np.empty((passes + 1) * nv + 1, dtype=np.int64)
     nm = projected = pushed = 0
@@ -713,8 +757,7 @@ def resolve_region(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, ts
             nm += k
             projected += k
     for _ in range(passes):
-        hit = crossed_at(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, verts, vside,
-                         R, segA, segB, rest_sep, rest_tol, reach, hint, pos, nth)
+        hit = crossed_at(X, test, fit, refit, hint, pos, nth)
         refit = False
         n_hit = 0
         for a in range(hit.shape[0]):

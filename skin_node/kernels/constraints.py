@@ -269,9 +269,11 @@ def zone_volume_constraint(X, T, tets, verts, w, rest, k, g):
     is the area-weighted normal on the zone's boundary, so one projection
     inflates (or deflates) the zone's skin evenly: flesh squeezed at a fold
     reappears as a bulge around it in one step instead of diffusing tet by
-    tet. ``verts`` are the tets' vertices (each once) and ``g`` (k,3) scratch.
-    The correction ``dp_i = -k w_i C / (sum_j w_j |g_j|^2) g_i`` is applied to
-    ``X`` here. Returns ``C`` before the projection.
+    tet. ``verts`` are the tets' vertices (each once). Its vertices are many,
+    so it writes its gradient into ``g`` (k,3), rows by vertex id, instead of
+    corrections into ``dp``: ``dp_i = w_i dlam g_i`` with
+    ``dlam = -k C / (sum_j w_j |g_j|^2)``, applied by
+    :func:`skin_node.kernels.solver.zone_volume_sweep`. Returns ``(dlam, C)``.
     """
     for a in range(verts.shape[0]):
         i = verts[a]
@@ -299,12 +301,5 @@ def zone_volume_constraint(X, T, tets, verts, w, rest, k, g):
         i = verts[a]
         wsum += w[i] * (g[i, 0] ** 2 + g[i, 1] ** 2 + g[i, 2] ** 2)
     if wsum < _EPS * _EPS:
-        return C
-    dlam = -k * C / wsum
-    for a in range(verts.shape[0]):
-        i = verts[a]
-        f = w[i] * dlam
-        X[i, 0] += f * g[i, 0]
-        X[i, 1] += f * g[i, 1]
-        X[i, 2] += f * g[i, 2]
-    return C
+        return 0.0, C
+    return -k * C / wsum, C

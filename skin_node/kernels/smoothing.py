@@ -1,6 +1,9 @@
-"""Delta Mush: smoothing that rounds what a deformation crumpled and keeps the rest
+"""Smoothing kernels (numba): Laplacian smoothing of a vertex set gathered into a
+compact ring layout, and Delta Mush.
+
+Delta Mush: smoothing that rounds what a deformation crumpled and keeps the rest
 pose's detail (Mancewicz et al., "Delta Mush: smoothing deformations while
-preserving detail", DigiPro 2014) (numba).
+preserving detail", DigiPro 2014).
 
 Smoothing the posed skin ``X`` rounds its creases and crumples but also melts
 its detail; the detail is the rest skin's difference from the same smoothing of
@@ -13,6 +16,8 @@ from __future__ import annotations
 
 import numba as nb
 import numpy as np
+
+from . import FAST
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -83,9 +88,108 @@ def vertex_faces(F: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     return vf_ptr, vf
 
 
+def ring_layout(verts: np.ndarray, ptr: np.ndarray, nbr: np.ndarray):
+    """The compact layout :func:`laplacian_smooth` works in: ``verts`` (sorted)
+    and their one ring gathered into ``ring`` (sorted), ``loc`` the position of
+    each of ``verts`` in it, and the verts' adjacency as CSR ``lptr``/``lnbr``
+    into ``ring``. Gathered, a joint region's few thousand vertices stay in
+    cache through the passes, where the whole surface and its adjacency would
+    not."""
+    verts = np.ascontiguousarray(verts, dtype=np.int64)
+    return _ring_layout(verts, ptr, nbr, np.full(len(ptr) - 1, -1, dtype=np.int64))
+
+
+@nb.njit(cache=True, nogil=True)
+def _ring_layout(verts, ptr, nbr, pos):
+    n = 0
+    for k in range(verts.shape[0]):
+        i = verts[k]
+        if pos[i] < 0:
+            pos[i] = 0
+            n += 1
+        for b in range(ptr[i], ptr[i + 1]):
+            q = nbr[b]
+            if pos[q] < 0:
+                pos[q] = 0
+                n += 1
+    ring = np.empty(n, dtype=np.int64)
+    m = 0
+    for v in range(pos.shape[0]):
+        if pos[v] >= 0:
+            pos[v] = m
+            ring[m] = v
+            m += 1
+    loc = np.empty(verts.shape[0], dtype=np.int64)
+    lptr = np.zeros(verts.shape[0] + 1, dtype=np.int64)
+    for k in range(verts.shape[0]):
+        i = verts[k]
+        loc[k] = pos[i]
+        lptr[k + 1] = lptr[k] + ptr[i + 1] - ptr[i]
+    lnbr = np.empty(lptr[-1], dtype=np.int32)
+    for k in range(verts.shape[0]):
+        i = verts[k]
+        for b in range(ptr[i], ptr[i + 1]):
+            lnbr[lptr[k] + b - ptr[i]] = pos[nbr[b]]
+    return ring, loc, lptr, lnbr
+
+
+@nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
+def laplacian_smooth(X, base, relative, ring, loc, lptr, lnbr, lw, k, iterations, L, buf):
+    """Jacobi Laplacian smoothing of the vertices of a :func:`ring_layout`, in
+    place: ``p <- (1-k) p + k mean(one ring)``, ``iterations`` times, of the
+    positions ``X`` or, with ``relative``, of the displacements ``X - base``
+    (``X = base + smoothed``). ``L`` (len(ring), 3) and ``buf`` (len(loc), 3)
+    are scratch. The ring is read, only the vertices themselves move. With
+    ``lw`` (one weight per ``lnbr`` entry; empty for an even mean) the mean is
+    weighted (:func:`edge_weights`: a sliver's two close corners move
+    together)."""
+    weighted = lw.shape[0] > 0
+    for a in nb.prange(ring.shape[0]):
+        i = ring[a]
+        for c in range(3):
+            L[a, c] = X[i, c] - base[i, c] if relative else X[i, c]
+    for _ in range(iterations):
+        for a in nb.prange(loc.shape[0]):
+            lo, hi = lptr[a], lptr[a + 1]
+            sx = sy = sz = 0.0
+            sw = 0.0
+            for b in range(lo, hi):
+                q = lnbr[b]
+                w = lw[b] if weighted else 1.0
+                sx += w * L[q, 0]
+                sy += w * L[q, 1]
+                sz += w * L[q, 2]
+                sw += w
+            c = k / max(sw, 1e-30)
+            i = loc[a]
+            buf[a, 0] = (1.0 - k) * L[i, 0] + c * sx
+            buf[a, 1] = (1.0 - k) * L[i, 1] + c * sy
+            buf[a, 2] = (1.0 - k) * L[i, 2] + c * sz
+        for a in nb.prange(loc.shape[0]):
+            i = loc[a]
+            L[i, 0], L[i, 1], L[i, 2] = buf[a, 0], buf[a, 1], buf[a, 2]
+    for a in nb.prange(loc.shape[0]):
+        i, v = loc[a], ring[loc[a]]
+        for c in range(3):
+            X[v, c] = base[v, c] + L[i, c] if relative else L[i, c]
+
+
+def edge_weights(V: np.ndarray, ring: np.ndarray, loc: np.ndarray, lptr: np.ndarray,
+                 lnbr: np.ndarray) -> np.ndarray:
+    """Weights ``1 / |edge|`` at rest for the neighbours of a :func:`ring_layout`
+    (``lw`` of :func:`laplacian_smooth`): a displacement smoothed with them
+    keeps the two corners of a short edge together, where an even mean moves
+    them apart by its change over the whole ring and flips the triangle."""
+    rows = np.repeat(ring[loc], np.diff(lptr))
+    d = np.linalg.norm(V[rows] - V[ring[lnbr]], axis=1)
+    if not len(d):
+        return d
+    return 1.0 / np.maximum(d, 1e-9 * max(float(d.mean()), 1e-30))
+
+
 def adjacency_weights(V: np.ndarray, ptr: np.ndarray, adj: np.ndarray) -> np.ndarray:
     """``1 / |edge|`` at rest for every entry of the one-ring CSR ``ptr``/``adj``
-    (what :func:`~skin_node.kernels.solver.edge_weights` gives a layout), once
+    (what :func:`edge_weights` gives a layout), once
     per character: :func:`gather_weights` then reads a layout's from it."""
     rows = np.repeat(np.arange(len(ptr) - 1), np.diff(ptr))
     d = np.linalg.norm(V[rows] - V[adj], axis=1)
@@ -96,7 +200,7 @@ def adjacency_weights(V: np.ndarray, ptr: np.ndarray, adj: np.ndarray) -> np.nda
 
 @nb.njit(cache=True, nogil=True)
 def gather_weights(verts, ptr, w, lptr):
-    """The weights of a :func:`~skin_node.kernels.solver.ring_layout` of
+    """The weights of a :func:`ring_layout` of
     ``verts`` (its ``lptr``) from the per-character :func:`adjacency_weights`."""
     out = np.empty(lptr[-1])
     for k in range(verts.shape[0]):

@@ -11,14 +11,17 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from . import FAST
 from .constraints import (bind_constraint, contact_constraint, energy_step,
-                          stretch_constraint, volume_constraint)
+                          stretch_constraint, volume_constraint, zone_volume_constraint)
 
-STRETCH, VOLUME, ENERGY, BIND = 0, 1, 2, 3
-
-#: Fast-math flags of the hot loops: reassociation, reciprocals, contraction,
-#: approximate functions. Not ``nnan``/``ninf``: the finiteness checks stay exact.
-FAST = {"nsz", "arcp", "contract", "afn", "reassoc"}
+#: The constraint kinds of the solve, by their names in the ``constraints``
+#: parameter: :func:`sweep` applies the first four over index arrays,
+#: :func:`contact_sweep` the contact planes, :func:`zone_volume_sweep` a zone's
+#: total volume.
+STRETCH, VOLUME, ENERGY, BIND, CONTACT, ZONE = range(6)
+CONSTRAINTS = {"stretch": STRETCH, "volume": VOLUME, "energy": ENERGY, "bind": BIND,
+               "contact": CONTACT, "zone_volume": ZONE}
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -96,6 +99,24 @@ def contact_sweep(X, w, idx, planes, plane_of):
         contact_constraint(X, i, w, P[0], P[1], P[2], P[3], P[4], P[5], dp)
         for d in range(3):
             X[i, d] += dp[0, d]
+
+
+@nb.njit(cache=True, nogil=True)
+def zone_volume_sweep(X, T, tets, verts, w, rest, k, g):
+    """One projection of :func:`~skin_node.kernels.constraints.zone_volume_constraint`
+    over the tets ``tets`` (their vertices ``verts``, each once):
+    ``X_i += w_i dlam g_i``. ``g`` (k,3) is scratch and keeps the gradient.
+    Returns ``C`` before the projection."""
+    dlam, C = zone_volume_constraint(X, T, tets, verts, w, rest, k, g)
+    if dlam == 0.0:
+        return C
+    for a in range(verts.shape[0]):
+        i = verts[a]
+        f = w[i] * dlam
+        X[i, 0] += f * g[i, 0]
+        X[i, 1] += f * g[i, 1]
+        X[i, 2] += f * g[i, 2]
+    return C
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -176,214 +197,41 @@ def sweep(kind: int, X, w, m, E, T, ks, seg, A, B, rest, erest, lam, idx, bounds
         _stretch_seq(X, w, E, rest, lam, idx, k, alpha)
 
 
-# --------------------------------------------------------------------------- skinning
-@nb.njit(cache=True, nogil=True, inline="always", fastmath=FAST)
-def _lbs_point(V, Widx, Wval, M, out, i):
-    """:func:`lbs` of point ``i`` (the one body both loops inline)."""
-    K = Widx.shape[1]
-    x, y, z = V[i, 0], V[i, 1], V[i, 2]
-    ox = oy = oz = 0.0
-    for a in range(K):
-        wt = Wval[i, a]
-        if wt == 0.0:
-            continue
-        j = Widx[i, a]          # index M directly: a row view costs a refcount
-        ox += wt * (M[j, 0, 0] * x + M[j, 0, 1] * y + M[j, 0, 2] * z + M[j, 0, 3])
-        oy += wt * (M[j, 1, 0] * x + M[j, 1, 1] * y + M[j, 1, 2] * z + M[j, 1, 3])
-        oz += wt * (M[j, 2, 0] * x + M[j, 2, 1] * y + M[j, 2, 2] * z + M[j, 2, 3])
-    out[i, 0], out[i, 1], out[i, 2] = ox, oy, oz
-
-
-@nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
-def lbs(V, Widx, Wval, M, out):
-    """Linear blend skinning ``v' = sum_j w_j M_j v`` with sparse weights.
-
-    ``V`` (n,3) rest points, ``Widx``/``Wval`` (n,K) bone indices and weights
-    (zero-padded), ``M`` (J,4,4) skinning matrices, ``out`` (n,3).
-    """
-    for i in nb.prange(Widx.shape[0]):
-        _lbs_point(V, Widx, Wval, M, out, i)
-
-
-@nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
-def lbs_rows(V, Widx, Wval, M, rows, out):
-    """:func:`lbs` of the points ``rows`` only; the rest of ``out`` is left alone."""
-    for k in nb.prange(rows.shape[0]):
-        _lbs_point(V, Widx, Wval, M, out, rows[k])
-
-
-@nb.njit(cache=True, nogil=True, inline="always", fastmath=FAST)
-def _dqs_point(V, Widx, Wval, Q, out, i):
-    """:func:`dqs` of point ``i`` (the one body both loops inline)."""
-    K = Widx.shape[1]
-    j0 = Widx[i, 0]
-    b0 = b1 = b2 = b3 = b4 = b5 = b6 = b7 = 0.0
-    for a in range(K):
-        wt = Wval[i, a]
-        if wt == 0.0:
-            continue
-        j = Widx[i, a]
-        dot = Q[j, 0] * Q[j0, 0] + Q[j, 1] * Q[j0, 1] + Q[j, 2] * Q[j0, 2] \
-            + Q[j, 3] * Q[j0, 3]
-        if dot < 0.0:
-            wt = -wt
-        b0 += wt * Q[j, 0]
-        b1 += wt * Q[j, 1]
-        b2 += wt * Q[j, 2]
-        b3 += wt * Q[j, 3]
-        b4 += wt * Q[j, 4]
-        b5 += wt * Q[j, 5]
-        b6 += wt * Q[j, 6]
-        b7 += wt * Q[j, 7]
-    inv = 1.0 / np.sqrt(b0 * b0 + b1 * b1 + b2 * b2 + b3 * b3)
-    w0, x0, y0, z0 = b0 * inv, b1 * inv, b2 * inv, b3 * inv
-    we, xe, ye, ze = b4 * inv, b5 * inv, b6 * inv, b7 * inv
-    # rotation of v by the real part
-    vx, vy, vz = V[i, 0], V[i, 1], V[i, 2]
-    tx = 2.0 * (y0 * vz - z0 * vy)
-    ty = 2.0 * (z0 * vx - x0 * vz)
-    tz = 2.0 * (x0 * vy - y0 * vx)
-    rx = vx + w0 * tx + (y0 * tz - z0 * ty)
-    ry = vy + w0 * ty + (z0 * tx - x0 * tz)
-    rz = vz + w0 * tz + (x0 * ty - y0 * tx)
-    # translation t = 2 * dual * conj(real)
-    px = 2.0 * (-we * x0 + xe * w0 - ye * z0 + ze * y0)
-    py = 2.0 * (-we * y0 + ye * w0 - ze * x0 + xe * z0)
-    pz = 2.0 * (-we * z0 + ze * w0 - xe * y0 + ye * x0)
-    out[i, 0], out[i, 1], out[i, 2] = rx + px, ry + py, rz + pz
-
-
-@nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
-def dqs(V, Widx, Wval, Q, out):
-    """Dual-quaternion skinning (Kavan et al. 2007) with sparse weights.
-
-    ``Q`` (J,8): per joint the unit real part (w,x,y,z) and dual part of its
-    skinning transform. Quaternions are flipped into the first influence's
-    hemisphere before blending, so blends never take the long way round.
-    """
-    for i in nb.prange(Widx.shape[0]):
-        _dqs_point(V, Widx, Wval, Q, out, i)
-
-
-@nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
-def dqs_rows(V, Widx, Wval, Q, rows, out):
-    """:func:`dqs` of the points ``rows`` only; the rest of ``out`` is left alone."""
-    for k in nb.prange(rows.shape[0]):
-        _dqs_point(V, Widx, Wval, Q, out, rows[k])
-
-
-@nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
-def embed_update(base, X, Xbase, Etet, Ebary, verts, out):
-    """Surface = its own stage-1 result plus the barycentric interpolation of
-    the tet mesh's correction: ``out_i = base_i + sum_a b_ia (X - Xbase)[t_ia]``
-    for ``i`` in ``verts`` (the vertices embedded in tets the solve touched).
-    Surface detail finer than the tets is therefore kept."""
-    for k in nb.prange(verts.shape[0]):
-        i = verts[k]
-        for d in range(3):
-            s = base[i, d]
-            for a in range(4):
-                v = Etet[i, a]
-                s += Ebary[i, a] * (X[v, d] - Xbase[v, d])
-            out[i, d] = s
-
-
-def ring_layout(verts: np.ndarray, ptr: np.ndarray, nbr: np.ndarray):
-    """The compact layout :func:`laplacian_smooth` works in: ``verts`` (sorted)
-    and their one ring gathered into ``ring`` (sorted), ``loc`` the position of
-    each of ``verts`` in it, and the verts' adjacency as CSR ``lptr``/``lnbr``
-    into ``ring``. Gathered, a joint region's few thousand vertices stay in
-    cache through the passes, where the whole surface and its adjacency would
-    not."""
-    verts = np.ascontiguousarray(verts, dtype=np.int64)
-    return _ring_layout(verts, ptr, nbr, np.full(len(ptr) - 1, -1, dtype=np.int64))
+@nb.njit(cache=True, nogil=True)
+def carry_correction(X, verts, M, dom, corr, apply):
+    """Warm start. ``apply``: ``X_i += R_i corr_i``; else ``corr_i = R_i^T X_i``
+    (``X`` then holding the correction), with ``R_i`` the rotation of vertex i's
+    main bone, so a correction rides with its limb from frame to frame."""
+    for a in range(verts.shape[0]):
+        i = verts[a]
+        R = M[dom[i]]
+        if apply:
+            for r in range(3):
+                X[i, r] += R[r, 0] * corr[i, 0] + R[r, 1] * corr[i, 1] + R[r, 2] * corr[i, 2]
+        else:
+            for c in range(3):
+                corr[i, c] = R[0, c] * X[i, 0] + R[1, c] * X[i, 1] + R[2, c] * X[i, 2]
 
 
 @nb.njit(cache=True, nogil=True)
-def _ring_layout(verts, ptr, nbr, pos):
-    n = 0
-    for k in range(verts.shape[0]):
-        i = verts[k]
-        if pos[i] < 0:
-            pos[i] = 0
-            n += 1
-        for b in range(ptr[i], ptr[i + 1]):
-            q = nbr[b]
-            if pos[q] < 0:
-                pos[q] = 0
-                n += 1
-    ring = np.empty(n, dtype=np.int64)
-    m = 0
-    for v in range(pos.shape[0]):
-        if pos[v] >= 0:
-            pos[v] = m
-            ring[m] = v
-            m += 1
-    loc = np.empty(verts.shape[0], dtype=np.int64)
-    lptr = np.zeros(verts.shape[0] + 1, dtype=np.int64)
-    for k in range(verts.shape[0]):
-        i = verts[k]
-        loc[k] = pos[i]
-        lptr[k + 1] = lptr[k] + ptr[i + 1] - ptr[i]
-    lnbr = np.empty(lptr[-1], dtype=np.int32)
-    for k in range(verts.shape[0]):
-        i = verts[k]
-        for b in range(ptr[i], ptr[i + 1]):
-            lnbr[lptr[k] + b - ptr[i]] = pos[nbr[b]]
-    return ring, loc, lptr, lnbr
+def max_move(X, prev, idx):
+    m = 0.0
+    for a in range(idx.shape[0]):
+        i = idx[a]
+        d = (X[i, 0] - prev[i, 0]) ** 2 + (X[i, 1] - prev[i, 1]) ** 2 + (X[i, 2] - prev[i, 2]) ** 2
+        m = max(m, d)
+    return np.sqrt(m)
 
 
-@nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
-def laplacian_smooth(X, base, relative, ring, loc, lptr, lnbr, lw, k, iterations, L, buf):
-    """Jacobi Laplacian smoothing of the vertices of a :func:`ring_layout`, in
-    place: ``p <- (1-k) p + k mean(one ring)``, ``iterations`` times, of the
-    positions ``X`` or, with ``relative``, of the displacements ``X - base``
-    (``X = base + smoothed``). ``L`` (len(ring), 3) and ``buf`` (len(loc), 3)
-    are scratch. The ring is read, only the vertices themselves move. With
-    ``lw`` (one weight per ``lnbr`` entry; empty for an even mean) the mean is
-    weighted (:func:`edge_weights`: a sliver's two close corners move
-    together)."""
-    weighted = lw.shape[0] > 0
-    for a in nb.prange(ring.shape[0]):
-        i = ring[a]
-        for c in range(3):
-            L[a, c] = X[i, c] - base[i, c] if relative else X[i, c]
-    for _ in range(iterations):
-        for a in nb.prange(loc.shape[0]):
-            lo, hi = lptr[a], lptr[a + 1]
-            sx = sy = sz = 0.0
-            sw = 0.0
-            for b in range(lo, hi):
-                q = lnbr[b]
-                w = lw[b] if weighted else 1.0
-                sx += w * L[q, 0]
-                sy += w * L[q, 1]
-                sz += w * L[q, 2]
-                sw += w
-            c = k / max(sw, 1e-30)
-            i = loc[a]
-            buf[a, 0] = (1.0 - k) * L[i, 0] + c * sx
-            buf[a, 1] = (1.0 - k) * L[i, 1] + c * sy
-            buf[a, 2] = (1.0 - k) * L[i, 2] + c * sz
-        for a in nb.prange(loc.shape[0]):
-            i = loc[a]
-            L[i, 0], L[i, 1], L[i, 2] = buf[a, 0], buf[a, 1], buf[a, 2]
-    for a in nb.prange(loc.shape[0]):
-        i, v = loc[a], ring[loc[a]]
-        for c in range(3):
-            X[v, c] = base[v, c] + L[i, c] if relative else L[i, c]
-
-
-def edge_weights(V: np.ndarray, ring: np.ndarray, loc: np.ndarray, lptr: np.ndarray,
-                 lnbr: np.ndarray) -> np.ndarray:
-    """Weights ``1 / |edge|`` at rest for the neighbours of a :func:`ring_layout`
-    (``lw`` of :func:`laplacian_smooth`): a displacement smoothed with them
-    keeps the two corners of a short edge together, where an even mean moves
-    them apart by its change over the whole ring and flips the triangle."""
-    rows = np.repeat(ring[loc], np.diff(lptr))
-    d = np.linalg.norm(V[rows] - V[ring[lnbr]], axis=1)
-    if not len(d):
-        return d
-    return 1.0 / np.maximum(d, 1e-9 * max(float(d.mean()), 1e-30))
-
-
+@nb.njit(cache=True, nogil=True)
+def fade_correction(X, base, verts, vzone, fade):
+    """``X_i = base_i + z_i (X_i - base_i)`` for ``i`` in ``verts``, ``z_i`` the
+    largest ``vzone[a, j] * fade[j]`` over the bent joints ``j`` (row ``a`` of
+    ``vzone`` is vertex ``verts[a]``'s zone membership)."""
+    for a in range(verts.shape[0]):
+        z = vzone[a, 0] * fade[0]
+        for j in range(1, fade.shape[0]):
+            z = max(z, vzone[a, j] * fade[j])
+        i = verts[a]
+        for d in range(3):
+            X[i, d] = base[i, d] + z * (X[i, d] - base[i, d])

@@ -46,7 +46,6 @@ translation channels stay in world axes.
 """
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -54,7 +53,9 @@ import numba
 import numpy as np
 import scipy.ndimage as ndi
 import scipy.sparse as sp
+import yaml
 from scipy.sparse.csgraph import dijkstra
+from scipy.spatial import cKDTree
 
 from ..kernels.collision import _closest_on_triangle
 from ..skeleton import Skeleton
@@ -128,6 +129,7 @@ def known_templates() -> list[str]:
 
 def _installed_template_dirs() -> tuple:
     try:  # an installed package keeps its templates in share/
+        # deferred: ament_index_python comes with a ROS install, which is optional
         from ament_index_python.packages import get_package_share_directory
         return (Path(get_package_share_directory("skin_node")) / "config" / "templates",)
     except Exception:
@@ -142,7 +144,6 @@ def load_template(template: str | Path) -> Template:
     ValueError
         ``"<file>: <problem>"`` for a missing or malformed template.
     """
-    import yaml
     path = template_path(template)
     if not path.exists():
         raise ValueError(f"{path}: no such template file")
@@ -417,7 +418,6 @@ def _axis_arg(v, what):
 def _mirror_error(V, axis):
     """Mean distance from the vertices mirrored about the plane normal to unit
     ``axis`` through the middle of their extent along it to the nearest vertex."""
-    from scipy.spatial import cKDTree
     s = V @ axis
     M = V - 2.0 * np.outer(s - 0.5 * (s.min() + s.max()), axis)
     return float(cKDTree(V).query(M)[0].mean())
@@ -991,91 +991,3 @@ def _keep_inside(vol, V, F, pos, tips):
     pts[fin] = P
     J = len(pos)
     return pts[:J], pts[J:], int(bad.sum())
-
-
-# ------------------------------------------------------------------ characters
-def read_closed_mesh(path: str | Path):
-    """A mesh file (any format trimesh reads) merged by position and checked closed.
-
-    Returns
-    -------
-    V : (n, 3) float, F : (m, 3) int
-
-    Raises
-    ------
-    ValueError
-        ``"<path>: <problem>"`` for a missing, unreadable, open or inward mesh.
-    """
-    from ..io.character_file import check_surface
-    path = Path(path)
-    if not path.exists():
-        raise ValueError(f"{path}: no such mesh file")
-    import trimesh
-    try:
-        m = trimesh.load(path, force="mesh", process=False)
-    except Exception as e:  # trimesh raises many kinds for bad files
-        raise ValueError(f"{path}: cannot be read as a mesh ({e})") from None
-    V, F = np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
-    if len(V) == 0 or len(F) == 0:
-        raise ValueError(f"{path}: the mesh has no triangles")
-    # Exporters split vertices at UV seams: merge by position for a closed surface.
-    V, inv = np.unique(np.round(V, 9), axis=0, return_inverse=True)
-    F = inv.reshape(-1)[F]
-    F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 2] != F[:, 0])]
-    check_surface(path, V, F)
-    return V, F
-
-
-def load_embedded(mesh_path: str | Path, template: str | Path = "humanoid", up=None,
-                  forward=None, tet_count: int | None = None, options=None,
-                  cache: bool = True, progress: bool = False):
-    """A :class:`~skin_node.character.Character` from a bare closed mesh: the
-    template skeleton is embedded automatically, then rigged as any character.
-
-    Parameters
-    ----------
-    mesh_path : str or Path
-        A closed mesh file (OBJ, PLY, STL, OFF, glTF/GLB: its first mesh in its
-        scene pose), metres.
-    template : str or Path
-        ``"humanoid"``, ``"quadruped"`` or a template YAML file.
-    up, forward : optional
-        See :func:`embed_skeleton`.
-    tet_count : int, optional
-        Target tet count (default ``max(6000, 2 * vertices)``, as for character files).
-    options : RigOptions, optional
-    cache : bool
-        Use the on-disk rig cache.
-    progress : bool
-        Print set-up steps to stderr when set-up is slow.
-
-    Raises
-    ------
-    ValueError
-        ``"<path>: <problem>"`` for a bad mesh or template.
-    """
-    from dataclasses import replace
-
-    from ..character import Character
-    from .build import RigOptions, Steps, cached_rig
-    steps = Steps(f"set-up of {mesh_path}", enabled=progress)
-    V, F = read_closed_mesh(mesh_path)
-    try:
-        emb = fit_template(V, F, template, up=up, forward=forward)
-    except ValueError as e:
-        raise ValueError(f"{mesh_path}: {e}") from None
-    if not emb.passed:
-        raise ValueError(f"{mesh_path}: {emb.failure()}")
-    if progress:
-        print(f"[skin_node] {mesh_path}: {emb.summary()}", file=sys.stderr, flush=True)
-    skel = emb.skeleton
-    steps(f"skeleton embedded ({skel.n_joints} joints)")
-    opt = options or RigOptions()
-    opt = replace(opt, tet_count=int(tet_count or (opt.tet_count if options
-                                                   else max(6000, 2 * len(V)))))
-    try:
-        rig = cached_rig(V, F, skel, opt, steps, use_cache=cache)
-    except ValueError as e:
-        raise ValueError(f"{mesh_path}: {e}") from None
-    steps("ready")
-    return Character(name=Path(mesh_path).stem, V=V, F=F, skeleton=skel, rig=rig, options=opt)

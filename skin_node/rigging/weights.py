@@ -6,22 +6,21 @@ import numpy as np
 from ..skeleton import Skeleton
 
 
+def segment_distance(P: np.ndarray, A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Distance of points ``P`` to segments ``A``-``B``, (..., 3) arrays that
+    broadcast (row-wise for three (n,3)); shape the broadcast's, without its
+    last axis. A segment of no length is its point ``A``."""
+    AB = B - A
+    AP = P - A
+    ab2 = np.maximum(np.einsum("...k,...k->...", AB, AB), 1e-18)
+    t = np.clip(np.einsum("...k,...k->...", AP, AB) / ab2, 0.0, 1.0)
+    D = AP - t[..., None] * AB
+    return np.sqrt(np.einsum("...k,...k->...", D, D))
+
+
 def point_segment_distance(P: np.ndarray, A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """(n, S) distances from points ``P`` (n,3) to segments ``A``-``B`` (S,3)."""
-    AB = B - A                                                  # (S,3)
-    AP = P[:, None, :] - A[None, :, :]                          # (n,S,3)
-    ab2 = np.maximum(np.einsum("sk,sk->s", AB, AB), 1e-18)
-    t = np.clip(np.einsum("nsk,sk->ns", AP, AB) / ab2, 0.0, 1.0)
-    D = AP - t[..., None] * AB[None]
-    return np.sqrt(np.einsum("nsk,nsk->ns", D, D))
-
-
-def segment_distance(P: np.ndarray, A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """Row-wise distance of points ``P`` (n,3) to segments ``A``-``B`` (n,3)."""
-    d = B - A
-    t = np.einsum("ij,ij->i", P - A, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-30)
-    t = np.clip(t, 0.0, 1.0)
-    return np.linalg.norm(P - (A + t[:, None] * d), axis=1)
+    return segment_distance(P[:, None, :], A[None, :, :], B[None, :, :])
 
 
 def bone_distances(P: np.ndarray, skel: Skeleton):

@@ -5,11 +5,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels.contact import contact_pairs, hold_planes, project_contacts
-from ..kernels.smoothing import adjacency_weights, gather_weights
-from ..kernels.solver import laplacian_smooth, ring_layout
+from ..kernels.smoothing import adjacency_weights, gather_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from .base import Frame, Stage
-from .skinning import matrices_to_dual_quaternions
+from ..kernels.skinning import matrices_to_dual_quaternions
 
 #: Where two parts' field gradients agree to within these cosines (from
 #: fully off to fully on), their skins run on into each other across a cut

@@ -3,9 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels.smoothing import (adjacency_weights, gather_weights, restore_detail,
-                                 vertex_faces)
-from ..kernels.solver import laplacian_smooth, ring_layout
+from ..kernels.smoothing import (adjacency_weights, gather_weights, laplacian_smooth,
+                                 restore_detail, ring_layout, vertex_faces)
 from ..kernels.topology import ring_distance
 from .base import Frame, Stage
 from ..rigging.weights import point_segment_distance

@@ -1,24 +1,22 @@
 """Stage 2: the extended position-based solve over the tet mesh."""
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
 
-from ..kernels import solver
-from ..kernels.constraints import zone_volume_constraint
+from ..kernels.skinning import embed_update
+from ..kernels.solver import (BIND, CONSTRAINTS, CONTACT, ENERGY, STRETCH, VOLUME, ZONE,
+                              carry_correction, contact_sweep, fade_correction, max_move, sweep,
+                              zone_volume_sweep)
+from ..rigging.weights import point_segment_distance
 from .base import Frame, KeyedCache, Stage
-
-STRETCH, VOLUME, ENERGY, BIND = solver.STRETCH, solver.VOLUME, solver.ENERGY, solver.BIND
-CONTACT, ZONE = 5, 6                     # applied by their own loops, not by solver.sweep
-CONSTRAINTS = {"stretch": STRETCH, "volume": VOLUME, "energy": ENERGY, "bind": BIND,
-               "contact": CONTACT, "zone_volume": ZONE}
 
 
 def partition(idx: np.ndarray, members: np.ndarray, part: np.ndarray, parts: int):
     """Order constraints ``idx`` (rows of ``members``, vertex ids) for a
     parallel sweep: those whose vertices all lie in part ``h`` (``part``, per
     vertex) first, part by part, then the separator (the rest). Returns the
-    ordered indices and the ``parts + 2`` range bounds :func:`solver.sweep` takes."""
+    ordered indices and the ``parts + 2`` range bounds that
+    :func:`~skin_node.kernels.solver.sweep` takes."""
     p = part[members[idx]]
     own = np.where((p == p[:, :1]).all(axis=1), p[:, 0], parts)
     order = np.argsort(own, kind="stable")
@@ -71,37 +69,14 @@ class PBD(Stage):
         self._key = None
         self._sets, self._zsets, self._slabs = KeyedCache(), KeyedCache(), KeyedCache(4)
         self._g = np.zeros((len(r.TV), 3))
+        self._regions = regions = character.regions(params["weight_scheme"])
         # Warm start: last frame's correction in the frame of each vertex's main bone.
-        w = self.weights
-        self._dom = w.TWidx[np.arange(len(r.TV)), np.argmax(w.TWval, axis=1)]
+        self._dom = regions.tdom
         self._corr = np.zeros((len(r.TV), 3))
         self._dX = None
-        self._contact_setup(character)
-
-    def _contact_setup(self, character) -> None:
-        """Per joint: its zone's tet vertices, their side (child +1 / parent -1)
-        and each side's flesh radius around its bone."""
-        from ..rigging.weights import point_segment_distance
-        from .collision import JointRegions
-        skel, r = character.skeleton, self.rig
-        J = skel.n_joints
-        below = skel.subtree()          # below[j, b]: b is j or under j
-        w = self.weights
-        dom = w.TWidx[np.arange(len(r.TV)), np.argmax(w.TWval, axis=1)]
-        self._regions = JointRegions(character, w)
-        self.cverts, self.cside = [], []
-        self.cR = np.zeros((J, 2))
-        for j in range(J):
-            v = np.flatnonzero(w.zone[:, j]) if skel.parents[j] >= 0 else np.zeros(0, np.int64)
-            side = below[j, dom[v]]
-            self.cverts.append(v)
-            self.cside.append(np.where(side, 1.0, -1.0))
-            if len(v):
-                A, B = self._regions.rest_segments(j)
-                for s_ in (0, 1):
-                    pts = r.TV[v[side == bool(s_)]]
-                    d = point_segment_distance(pts, A[s_:s_ + 1], B[s_:s_ + 1])
-                    self.cR[j, s_] = d.max() if d.size else 0.0
+        # Contact planes: per joint, its zone's tet vertices, their side (child +1 /
+        # parent -1) and each side's flesh radius around its bone.
+        self.cverts, self.cside, self.cR = regions.tet_sides
 
     def _zones(self, bent: np.ndarray):
         """(tets, vertices, rest volume) of each bent joint's zone, cached."""
@@ -136,7 +111,6 @@ class PBD(Stage):
             n /= nn
             side = self.cside[j]
             X = fr.tet[v]
-            from ..rigging.weights import point_segment_distance
             near = np.zeros(len(v), dtype=bool)
             for s_ in (0, 1):           # vertices of side s_ near the other bone
                 m = side == (1.0 if s_ else -1.0)
@@ -247,7 +221,7 @@ class PBD(Stage):
         prev = X.copy() if tol > 0 else None
         verts = sets[BIND][0]
         if p["warm_start"]:
-            _carry(X, verts, fr.M, self._dom, self._corr, True)
+            carry_correction(X, verts, fr.M, self._dom, self._corr, True)
         for it in range(1, int(p["iterations"]) + 1):
             for kind in kinds:
                 idx, bounds = sets[kind]
@@ -255,16 +229,15 @@ class PBD(Stage):
                 # (a uniform k cancels out of C / |grad C|^2 otherwise).
                 k = k_of[kind] if (not xpbd or kind == ENERGY) else 1.0
                 alpha = a_of[kind] if xpbd else 0.0
-                solver.sweep(kind, X, w, self.mass, r.E, r.T, ks, r.bseg, fr.seg_A, fr.seg_B,
-                             r.len0 if kind == STRETCH else r.vol0 if kind == VOLUME
-                             else r.brest, r.erest, self.lam[kind], idx, bounds, k, alpha,
-                             self._parts())
+                sweep(kind, X, w, self.mass, r.E, r.T, ks, r.bseg, fr.seg_A, fr.seg_B,
+                      r.len0 if kind == STRETCH else r.vol0 if kind == VOLUME else r.brest,
+                      r.erest, self.lam[kind], idx, bounds, k, alpha, self._parts())
             for tets, verts, v0 in zones:
-                zone_volume_constraint(X, r.T, tets, verts, w, v0, 1.0, self._g)
+                zone_volume_sweep(X, r.T, tets, verts, w, v0, 1.0, self._g)
             if contacts is not None:
-                solver.contact_sweep(X, w, *contacts)
+                contact_sweep(X, w, *contacts)
             if prev is not None:
-                moved = _max_move(X, prev, sets[BIND][0])
+                moved = max_move(X, prev, sets[BIND][0])
                 if moved < tol:
                     break
                 prev[:] = X
@@ -273,49 +246,9 @@ class PBD(Stage):
         if p["warm_start"]:
             self._dX = X - fr.tet_base if self._dX is None else \
                 np.subtract(X, fr.tet_base, out=self._dX)
-            _carry(self._dX, verts, fr.M, self._dom, self._corr, False)
+            carry_correction(self._dX, verts, fr.M, self._dom, self._corr, False)
         f = fr.fade
         if p["active_regions"] and np.any((f > 0) & (f < 1)):
             # Joints still in their fade band pass on only part of the correction.
-            _fade(X, fr.tet_base, verts, vzone, f[fr.bent])
-        solver.embed_update(fr.surface_base, X, fr.tet_base, r.Etet, r.Ebary, sverts, fr.surface)
-
-
-@nb.njit(cache=True, nogil=True)
-def _carry(X, verts, M, dom, corr, apply):
-    """Warm start. ``apply``: ``X_i += R_i corr_i``; else ``corr_i = R_i^T X_i``
-    (``X`` then holding the correction), with ``R_i`` the rotation of vertex i's
-    main bone, so a correction rides with its limb from frame to frame."""
-    for a in range(verts.shape[0]):
-        i = verts[a]
-        R = M[dom[i]]
-        if apply:
-            for r in range(3):
-                X[i, r] += R[r, 0] * corr[i, 0] + R[r, 1] * corr[i, 1] + R[r, 2] * corr[i, 2]
-        else:
-            for c in range(3):
-                corr[i, c] = R[0, c] * X[i, 0] + R[1, c] * X[i, 1] + R[2, c] * X[i, 2]
-
-
-@nb.njit(cache=True, nogil=True)
-def _max_move(X, prev, idx):
-    m = 0.0
-    for a in range(idx.shape[0]):
-        i = idx[a]
-        d = (X[i, 0] - prev[i, 0]) ** 2 + (X[i, 1] - prev[i, 1]) ** 2 + (X[i, 2] - prev[i, 2]) ** 2
-        m = max(m, d)
-    return np.sqrt(m)
-
-
-@nb.njit(cache=True, nogil=True)
-def _fade(X, base, verts, vzone, fade):
-    """``X_i = base_i + z_i (X_i - base_i)`` for ``i`` in ``verts``, ``z_i`` the
-    largest ``vzone[a, j] * fade[j]`` over the bent joints ``j`` (row ``a`` of
-    ``vzone`` is vertex ``verts[a]``'s zone membership)."""
-    for a in range(verts.shape[0]):
-        z = vzone[a, 0] * fade[0]
-        for j in range(1, fade.shape[0]):
-            z = max(z, vzone[a, j] * fade[j])
-        i = verts[a]
-        for d in range(3):
-            X[i, d] = base[i, d] + z * (X[i, d] - base[i, d])
+            fade_correction(X, fr.tet_base, verts, vzone, f[fr.bent])
+        embed_update(fr.surface_base, X, fr.tet_base, r.Etet, r.Ebary, sverts, fr.surface)

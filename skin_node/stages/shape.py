@@ -6,7 +6,7 @@ import numpy as np
 
 from ..kernels.shape import (cone_volume_gradient, enclosed_volume, limit_bulge,
                              region_incidence, split_fade)
-from ..kernels.solver import edge_weights, laplacian_smooth, ring_layout
+from ..kernels.smoothing import edge_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from ..rigging.weights import point_segment_distance, segment_distance
 from .base import Frame, KeyedCache, Stage

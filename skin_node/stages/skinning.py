@@ -1,51 +1,10 @@
 """Stage 1: linear blend skinning and dual-quaternion skinning of both meshes."""
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
 
-from ..kernels import solver
+from ..kernels.skinning import dqs, dqs_rows, lbs, lbs_rows, matrices_to_dual_quaternions
 from .base import Frame, Stage
-
-
-def matrices_to_dual_quaternions(M: np.ndarray) -> np.ndarray:
-    """(J, 8) unit dual quaternions (real w,x,y,z, dual w,x,y,z) of rigid (J,4,4) ``M``."""
-    M = np.ascontiguousarray(M, dtype=np.float64)
-    return _dual_quaternions(M, np.empty((len(M), 8)))
-
-
-@nb.njit(cache=True, nogil=True)
-def _dual_quaternions(M, q):
-    for i in range(M.shape[0]):
-        r = M[i]
-        tr = r[0, 0] + r[1, 1] + r[2, 2]
-        # Shepperd's method: pick the largest pivot for stability.
-        if tr >= r[0, 0] and tr >= r[1, 1] and tr >= r[2, 2]:
-            s = np.sqrt(1.0 + tr) * 2
-            w, x, y, z = 0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, \
-                (r[1, 0] - r[0, 1]) / s
-        elif r[0, 0] >= r[1, 1] and r[0, 0] >= r[2, 2]:
-            s = np.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2]) * 2
-            w, x, y, z = (r[2, 1] - r[1, 2]) / s, 0.25 * s, (r[0, 1] + r[1, 0]) / s, \
-                (r[0, 2] + r[2, 0]) / s
-        elif r[1, 1] >= r[2, 2]:
-            s = np.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2]) * 2
-            w, x, y, z = (r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, 0.25 * s, \
-                (r[1, 2] + r[2, 1]) / s
-        else:
-            s = np.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1]) * 2
-            w, x, y, z = (r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, \
-                (r[1, 2] + r[2, 1]) / s, 0.25 * s
-        n = np.sqrt(w * w + x * x + y * y + z * z)
-        w, x, y, z = w / n, x / n, y / n, z / n
-        # dual = 0.5 * (0, t) * real
-        tx, ty, tz = r[0, 3], r[1, 3], r[2, 3]
-        q[i, 0], q[i, 1], q[i, 2], q[i, 3] = w, x, y, z
-        q[i, 4] = 0.5 * (-tx * x - ty * y - tz * z)
-        q[i, 5] = 0.5 * (tx * w + ty * z - tz * y)
-        q[i, 6] = 0.5 * (-tx * z + ty * w + tz * x)
-        q[i, 7] = 0.5 * (tx * y - ty * x + tz * w)
-    return q
 
 
 class LBS(Stage):
@@ -73,9 +32,9 @@ class LBS(Stage):
 
     def skin(self, V, W, T, out, rows=None):
         if rows is None:
-            solver.lbs(V, W[0], W[1], T, out)
+            lbs(V, W[0], W[1], T, out)
         else:
-            solver.lbs_rows(V, W[0], W[1], T, rows, out)
+            lbs_rows(V, W[0], W[1], T, rows, out)
 
     def __call__(self, fr: Frame) -> None:
         T = self.transforms(fr)
@@ -111,6 +70,6 @@ class DQS(LBS):
 
     def skin(self, V, W, T, out, rows=None):
         if rows is None:
-            solver.dqs(V, W[0], W[1], T, out)
+            dqs(V, W[0], W[1], T, out)
         else:
-            solver.dqs_rows(V, W[0], W[1], T, rows, out)
+            dqs_rows(V, W[0], W[1], T, rows, out)

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels.solver import laplacian_smooth, ring_layout
+from ..kernels.smoothing import laplacian_smooth, ring_layout
 from .base import Frame, KeyedCache, Stage
 
 _EVEN = np.empty(0)        # an even mean of the one ring (the paper's)
@@ -28,7 +28,7 @@ class Smooth(Stage):
         self.ptr, self.adj = r.adj_ptr, r.adj
         self.region = r.region
         # surface vertices whose tet touches each joint's zone
-        self.szone = self.weights.zone[r.Etet].any(axis=1)
+        self.szone = character.regions(params["weight_scheme"]).surface_zone
         self._sets = KeyedCache()
         self._ring = np.empty_like(character.V)      # scratch: the gathered ring
         self._buf = np.empty_like(character.V)

@@ -32,248 +32,15 @@ the bent joints' zones with or without their joint regions.
 """
 from __future__ import annotations
 
-import math
-
 import numba as nb
 import numpy as np
 
-from ..metrics import mesh_volume, region_volume
-from .base import Frame, KeyedCache, Stage
-from ..kernels.collision import crossed_at, in_box, longest_edge, near_points, seg_dist
 from ..kernels.topology import ring_distance
-from .collision import JointRegions
-
-
-@nb.njit(cache=True, nogil=True)
-def volume_and_gradient(X, F, inc_ptr, inc, verts, g):
-    """Enclosed volume of the whole mesh, and ``g_i = dV/dp_i`` for ``verts`` only:
-    ``(1/6) sum over the faces (i, b, c) around i of p_b x p_c``."""
-    vol = 0.0
-    for f in range(F.shape[0]):
-        a, b, c = F[f, 0], F[f, 1], F[f, 2]
-        vol += (X[a, 0] * (X[b, 1] * X[c, 2] - X[b, 2] * X[c, 1])
-                + X[a, 1] * (X[b, 2] * X[c, 0] - X[b, 0] * X[c, 2])
-                + X[a, 2] * (X[b, 0] * X[c, 1] - X[b, 1] * X[c, 0])) / 6.0
-    for k in range(verts.shape[0]):
-        i = verts[k]
-        gx = gy = gz = 0.0
-        for q in range(inc_ptr[i], inc_ptr[i + 1]):
-            f = inc[q]
-            e = 0
-            while F[f, e] != i:
-                e += 1
-            b, c = F[f, (e + 1) % 3], F[f, (e + 2) % 3]
-            gx += X[b, 1] * X[c, 2] - X[b, 2] * X[c, 1]
-            gy += X[b, 2] * X[c, 0] - X[b, 0] * X[c, 2]
-            gz += X[b, 0] * X[c, 1] - X[b, 1] * X[c, 0]
-        g[k, 0], g[k, 1], g[k, 2] = gx / 6.0, gy / 6.0, gz / 6.0
-    return vol
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def flesh_ramp(d, R):
-    """0 within the other side's flesh radius ``R`` of its bone, rising to 1 at 1.5 ``R``."""
-    return min(1.0, max(0.0, (d / max(R, 1e-9) - 1.0) / 0.5))
-
-
-@nb.njit(cache=True, nogil=True)
-def _mobility(X, mob, Z, ZJ, ZL, ZS, fade, A, B, R, m):
-    """``m[ZL] = max over entries of mob[Z, j] * fade[j] * ramp``, with ramp 0
-    within the other side's flesh radius ``R`` of its bone, 1 past 1.5 R."""
-    for e in range(Z.shape[0]):
-        i, j, o = Z[e], ZJ[e], 1 - ZS[e]
-        ramp = flesh_ramp(seg_dist(X[i, 0], X[i, 1], X[i, 2], A[j, o], B[j, o]), R[j, o])
-        val = mob[e] * fade[j] * ramp
-        if val > m[ZL[e]]:
-            m[ZL[e]] = val
-
-
-@nb.njit(cache=True, nogil=True)
-def region_volume_gradient(X, F, tris, cx, cy, cz, g):
-    """Volume of the cone from ``c`` over the triangles ``tris`` and its gradient,
-    written into ``g`` at their vertices (other rows of ``g`` are left alone)."""
-    for a in range(tris.shape[0]):
-        for e in range(3):
-            v = F[tris[a], e]
-            g[v, 0] = g[v, 1] = g[v, 2] = 0.0
-    vol = 0.0
-    for a in range(tris.shape[0]):
-        i, j, k = F[tris[a], 0], F[tris[a], 1], F[tris[a], 2]
-        ax, ay, az = X[i, 0] - cx, X[i, 1] - cy, X[i, 2] - cz
-        bx, by, bz = X[j, 0] - cx, X[j, 1] - cy, X[j, 2] - cz
-        qx, qy, qz = X[k, 0] - cx, X[k, 1] - cy, X[k, 2] - cz
-        # b x q, q x a, a x b: the gradients at i, j, k (times 6)
-        ux, uy, uz = by * qz - bz * qy, bz * qx - bx * qz, bx * qy - by * qx
-        vx, vy, vz = qy * az - qz * ay, qz * ax - qx * az, qx * ay - qy * ax
-        wx, wy, wz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
-        vol += (ax * ux + ay * uy + az * uz) / 6.0
-        g[i, 0] += ux / 6.0
-        g[i, 1] += uy / 6.0
-        g[i, 2] += uz / 6.0
-        g[j, 0] += vx / 6.0
-        g[j, 1] += vy / 6.0
-        g[j, 2] += vz / 6.0
-        g[k, 0] += wx / 6.0
-        g[k, 1] += wy / 6.0
-        g[k, 2] += wz / 6.0
-    return vol
-
-
-@nb.njit(cache=True, nogil=True)
-def move_along_normals(X, verts, m, g, C, budget):
-    """Project ``C = 0`` to first order by moving ``verts`` along their unit
-    normals ``g / |g|`` by ``lam * m_i``; ``dV = sum g . dp = lam sum m |g|``.
-    ``|lam|`` is clipped to ``budget``; returns the ``lam`` applied and the
-    first-order volume change ``lam sum m |g|``."""
-    den = 0.0
-    for a in range(verts.shape[0]):
-        i = verts[a]
-        den += m[a] * math.sqrt(g[i, 0] ** 2 + g[i, 1] ** 2 + g[i, 2] ** 2)
-    if den <= 1e-30:
-        return 0.0, 0.0
-    lam = min(max(-C / den, -budget), budget)
-    for a in range(verts.shape[0]):
-        i = verts[a]
-        L = math.sqrt(g[i, 0] ** 2 + g[i, 1] ** 2 + g[i, 2] ** 2)
-        if L > 1e-30:
-            f = lam * m[a] / L
-            X[i, 0] += f * g[i, 0]
-            X[i, 1] += f * g[i, 1]
-            X[i, 2] += f * g[i, 2]
-    return lam, lam * den
-
-
-@nb.njit(cache=True, nogil=True)
-def restore_region(X, F, tris, c, verts, mob, side, fade, A, B, R, hops, ring_width, vol0,
-                   max_move, g, m, passes, guarded):
-    """Give joint region ``tris`` its rest volume ``vol0`` back (cone from the
-    posed joint centre ``c``), moving ``verts`` along their normals by at most
-    ``max_move``. Mobility: ``mob * fade``; with ``guarded``, times a ramp from 0
-    within the other side's flesh radius ``R`` of its bone (``A``-``B``) to 1 at
-    1.5 ``R``, times ``min(1, hops / ring_width)`` (rings from skin in contact).
-    Returns the region's volume ratio after the ``passes`` projections, to first
-    order."""
-    mmax = 0.0
-    for a in range(verts.shape[0]):
-        i, o = verts[a], 1 - side[a]
-        m[a] = mob[a] * fade
-        if guarded:
-            ramp = flesh_ramp(seg_dist(X[i, 0], X[i, 1], X[i, 2], A[o], B[o]), R[o])
-            m[a] *= ramp * min(1.0, hops[i] / ring_width)
-        mmax = max(mmax, m[a])
-    if vol0 == 0.0:
-        return 1.0
-    budget = max_move / max(mmax, 1e-30)
-    vol = vol0
-    for _ in range(passes):
-        vol = region_volume_gradient(X, F, tris, c[0], c[1], c[2], g)
-        if mmax <= 0.0:
-            break
-        lam, dv = move_along_normals(X, verts, m, g, vol - vol0, budget)
-        budget -= abs(lam)
-        vol += dv
-    return vol / vol0
-
-
-@nb.njit(cache=True, nogil=True)
-def _new_crossings(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, verts, vside, R,
-                   segA, segB, rest_sep, rest_tol, reach, hint, pos, nth, v, keep):
-    """Of ``pos`` (positions into ``verts``), those whose vertex crosses skin
-    now but did not with ``v`` at ``keep``, and the triangles they cross (-2:
-    none, deep in the other side's flesh). Both tests are :func:`crossed_at`'s,
-    the first fitting the tree afresh with ``refit``."""
-    hit = crossed_at(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, verts, vside, R,
-                     segA, segB, rest_sep, rest_tol, reach, hint, pos, nth)
-    now = np.flatnonzero(hit != -1)
-    if now.shape[0] == 0:
-        return pos[now], hit[now]
-    # the same test of those, with v back at keep
-    moved = np.empty((v.shape[0], 3))
-    for a in range(v.shape[0]):
-        for d in range(3):
-            moved[a, d] = X[v[a], d]
-            X[v[a], d] = keep[a, d]
-    before = crossed_at(X, X0, F, M, tri_bone, tri_normal, tree, fit, False, tris, verts, vside,
-                        R, segA, segB, rest_sep, rest_tol, reach, hint, pos[now], nth)
-    for a in range(v.shape[0]):
-        for d in range(3):
-            X[v[a], d] = moved[a, d]
-    new = now[before == -1]
-    return pos[new], hit[new]
-
-
-@nb.njit(cache=True, nogil=True)
-def swell_checked(X, F, tris, c, v, mob, side, fade, A, B, R, hops, ring_width, vol0, max_move,
-                  g, m, passes, ratio, m_guarded, X0, M, tri_bone, tri_normal, tree, fit, refit,
-                  verts, vside, segA, segB, rest_sep, rest_tol, cell, hint, edge, emax, nth):
-    """:meth:`Volume._checked`'s swell and check of one joint region: the
-    arguments of :func:`restore_region` (``tris`` the region's triangles,
-    ``v`` its mobile vertices, ``A``, ``B`` and ``R`` its posed bones and flesh
-    radii), the guarded ``ratio`` and mobilities ``m_guarded``, then those of
-    the crossing test (:func:`crossed_vertices` over ``verts``, the region's
-    vertices, ``segA``, ``segB`` the posed bones as the collision stage has
-    them; ``cell`` its reach, ``edge`` and ``emax`` the median and longest
-    rest edges). Returns the region's volume ratio."""
-    nv = v.shape[0]
-    keep = np.empty((nv, 3))
-    for a in range(nv):
-        for d in range(3):
-            keep[a, d] = X[v[a], d]
-    new = restore_region(X, F, tris, c, v, mob, side, fade, A, B, R, hops, ring_width, vol0,
-                         max_move, g, m, passes, False)
-    freed = np.flatnonzero(m[:nv] > m_guarded + 1e-9)
-    if freed.shape[0] == 0:
-        return new
-    reach = cell + 2.0 * emax
-    retest = max(reach, cell + longest_edge(X, F, tris) + 2.0 * max_move)
-    P = np.empty((2 * freed.shape[0], 3))
-    for b in range(freed.shape[0]):
-        for d in range(3):
-            P[b, d] = X[v[freed[b]], d]
-            P[freed.shape[0] + b, d] = keep[freed[b], d]
-    sub = in_box(X, verts, np.arange(verts.shape[0]), P, retest)
-    bad, tri = _new_crossings(X, X0, F, M, tri_bone, tri_normal, tree, fit, refit, tris, verts,
-                              vside, R, segA, segB, rest_sep, rest_tol, cell, hint, sub, nth, v,
-                              keep)
-    every = np.arange(nv)
-    for r in (1.5 * edge, 3.0 * edge, reach, reach, reach):
-        if bad.shape[0] == 0:
-            return region_volume_gradient(X, F, tris, c[0], c[1], c[2], g) / vol0
-        # Put back the skin near each new crossing, then or now, and the corners
-        # of the triangle it crosses; test again around it.
-        P = np.empty((bad.shape[0], 3))
-        for b in range(bad.shape[0]):
-            for d in range(3):
-                P[b, d] = X[verts[bad[b]], d]
-        mark = np.zeros(nv, dtype=np.bool_)
-        for near_now in (near_points(X, v, P, r), near_points(keep, every, P, r)):
-            for b in range(near_now.shape[0]):
-                mark[near_now[b]] = True
-        for b in range(tri.shape[0]):
-            if tri[b] < 0:
-                continue
-            for e in range(3):
-                corner = F[tri[b], e]
-                at = min(np.searchsorted(v, corner), nv - 1)
-                if v[at] == corner:
-                    mark[at] = True
-        back = np.flatnonzero(mark)
-        if back.shape[0] == 0:
-            break
-        P = np.empty((2 * back.shape[0], 3))
-        for b in range(back.shape[0]):
-            for d in range(3):
-                P[b, d] = X[v[back[b]], d]
-                P[back.shape[0] + b, d] = keep[back[b], d]
-                X[v[back[b]], d] = keep[back[b], d]
-        near = in_box(X, verts, sub, P, retest)
-        bad, tri = _new_crossings(X, X0, F, M, tri_bone, tri_normal, tree, fit, False, tris,
-                                  verts, vside, R, segA, segB, rest_sep, rest_tol, cell, hint,
-                                  near, nth, v, keep)
-    for a in range(nv):
-        for d in range(3):
-            X[v[a], d] = keep[a, d]
-    return ratio
+from ..kernels.volume import (RegionSwell, restore_region, swell_checked, volume_and_gradient,
+                              zone_mobility)
+from ..metrics import mesh_volume
+from ..rigging.regions import RegionSearch
+from .base import Frame, KeyedCache, Stage
 
 
 class Volume(Stage):
@@ -284,51 +51,20 @@ class Volume(Stage):
 
     def __init__(self, character, params):
         super().__init__(character, params)
-        skel, r = character.skeleton, character.rig
-        J = skel.n_joints
-        below = skel.subtree()          # below[j, b]: b is j or under j
-        # mobility[:, j]: 4 s (1 - s) with s the weight a vertex takes from below j.
-        self.mobility = np.zeros((len(character.V), J))
-        self.zone, self.side = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
-        for j in range(1, J):
-            s = (self.weights.Wval * below[j][self.weights.Widx]).sum(1)
-            self.mobility[:, j] = 4.0 * s * (1.0 - s)
-            z = np.flatnonzero(self.mobility[:, j] > 0.02)
-            self.zone.append(z)
-            self.side.append((s[z] > 0.5).astype(np.int64))
+        r = character.rig
         self.F = character.F
         self._region = r.region
         self._threshold = r.threshold
         self.V0 = mesh_volume(character.V, character.F)
-        self.regions = regs = JointRegions(character, self.weights)
-        # Per joint region: its vertices that may move (the zone's), their side and
-        # mobility, and the region's rest volume about the joint. The mobility falls
-        # smoothly to 0 towards the region's border (over a third of the limb
-        # radius), where the skin outside it stays put: no step at the border.
-        from scipy.spatial import cKDTree
-        self.rverts, self.rside, self.rmob = [], [], []
-        self.rvol0 = np.zeros(J)
-        for j in range(J):
-            t = regs.tris[j]
-            v = np.unique(self.F[t]) if len(t) and j > 0 else np.zeros(0, np.int64)
-            keep = (np.isin(v, self.zone[j]) & (r.region[v] == j)) if j > 0 else np.zeros(0, bool)
-            v = v[keep]
-            mob = self.mobility[v, j] if j > 0 else np.zeros(0)
-            outside = np.unique(self.F[t])
-            outside = outside[r.region[outside] != j] if len(t) else outside
-            if len(v) and len(outside):
-                d, _ = cKDTree(character.V[outside]).query(character.V[v])
-                x = np.clip(d / max(r.radius[j] / 3.0, 1e-9), 0.0, 1.0)
-                mob = mob * x * x * (3.0 - 2.0 * x)
-            self.rverts.append(v.astype(np.int64))
-            self.rmob.append(mob)
-            self.rside.append(self.side[j][np.searchsorted(self.zone[j], v)] if j > 0
-                              else np.zeros(0, np.int64))
-            if len(t):
-                self.rvol0[j] = region_volume(character.V, self.F, t, skel.rest_positions[j])
+        self.regions = regs = character.regions(params["weight_scheme"])
+        self.search = RegionSearch(regs)
+        # Per joint: the zone's vertices, their side and mobility; per joint region:
+        # its vertices that may move, their side and mobility, its rest volume.
+        sw = regs.swell
+        self.mobility, self.zone, self.side = sw.mobility, sw.zone, sw.side
+        self.rverts, self.rside, self.rmob, self.rvol0 = sw.verts, sw.vside, sw.mob, sw.vol0
         # skin in contact keeps still over half the joint's limb radius (in rings)
-        e = np.linalg.norm(character.V[self.F[:, 0]] - character.V[self.F[:, 1]], axis=1)
-        self._ring_edge = max(float(np.median(e)), 1e-9)
+        self._ring_edge = max(regs.edge, 1e-9)
         self._ring_width = np.maximum(0.5 * r.radius / self._ring_edge, 1.0)
         self._hop_limit = int(min(np.ceil(self._ring_width.max()) + 1, 64))
         self._hops = np.full(len(character.V), self._hop_limit, dtype=np.int64)
@@ -338,10 +74,7 @@ class Volume(Stage):
         self._none, self._gnone = np.zeros(0, np.int64), np.zeros((0, 3))
         self._m = np.zeros(len(character.V))
         # vertex -> incident faces, CSR
-        F = character.F
-        order = np.argsort(F.ravel(), kind="stable")
-        self.inc = (order // 3).astype(np.int64)
-        self.inc_ptr = np.searchsorted(F.ravel()[order], np.arange(len(character.V) + 1))
+        self.inc_ptr, self.inc = regs.faces_around
         self._entries, self._fold = KeyedCache(), KeyedCache(64)
 
     def __call__(self, fr: Frame) -> None:
@@ -392,19 +125,19 @@ class Volume(Stage):
             # degrees to nothing at 180.
             fold = min(1.0, max(0.0, (np.pi - fr.angles[j]) / (0.5 * np.pi)))
             max_move = cap * fold * regs.radius[j]
-            args = (X, self.F, regs.tris[j], fr.G[j, :3, 3], v, self.rmob[j], self.rside[j],
-                    fr.fade[j], A[j], B[j], regs.R[j], hops, self._ring_width[j],
-                    self.rvol0[j], max_move, self._g, self._m, 2)
-            ratio = restore_region(*args, True)
+            swell = RegionSwell(self.F, regs.tris[j], fr.G[j, :3, 3], v, self.rmob[j],
+                                self.rside[j], fr.fade[j], A[j], B[j], regs.R[j], hops,
+                                self._ring_width[j], self.rvol0[j], max_move, self._g, self._m, 2)
+            ratio = restore_region(X, swell, True)
             if ratio < 1.0 - checked and self.params["self_collision"]:
-                ratio = self._checked(fr, j, args, ratio, self._m[:len(v)].copy(), max_move)
+                ratio = self._checked(fr, j, swell, ratio, self._m[:len(v)].copy())
             worst = min(worst, ratio)
         if reached:
             hops[self._queue[:reached]] = self._hop_limit
         fr.counts["region_volume_min"] = worst
 
-    def _checked(self, fr: Frame, j: int, args, ratio: float, m_guarded,
-                 max_move: float) -> float:
+    def _checked(self, fr: Frame, j: int, swell: RegionSwell, ratio: float,
+                 m_guarded: np.ndarray) -> float:
         """Past the guards, where they leave region ``j`` short: skin within the
         other side's flesh radius, or next to a resolved contact, may as well
         swell away from that skin as into it. Move all of the region's mobile
@@ -420,16 +153,15 @@ class Volume(Stage):
         triangles after the move (a lowered arm stretches skin to several rest
         edges; no corner moved more than ``max_move``). The radius put back
         grows from a ring to the test's reach while crossings stay.
-        ``m_guarded``: the mobilities of the guarded pass; ``max_move``: the
-        most any skin moves (``args``' own). Returns the region's volume ratio."""
+        ``swell``: the region's constraint (its ``max_move`` the most any skin
+        moves); ``m_guarded``: the mobilities of the guarded pass. Returns the
+        region's volume ratio."""
         regs = self.regions
         posed = regs.posed_segments(j, fr.M, fr.memo)
-        tree, fit, refit, hint = regs.search_state(j, fr.surface, posed)
-        return swell_checked(*args, ratio, m_guarded, self.character.V,
-                             np.ascontiguousarray(fr.M), regs.tri_bone, regs.tri_normal, tree,
-                             fit, refit, regs.verts[j], regs.vside[j], posed[0], posed[1],
-                             *regs.test_limits(j), hint, regs.edge, regs.emax,
-                             nb.get_num_threads())
+        _, fit, refit, hint = self.search.state(j, fr.surface, posed)
+        test = regs.region_test(j, self.character.V, self.F, fr.M, posed)
+        return swell_checked(fr.surface, swell, ratio, m_guarded, test, fit, refit, hint,
+                             regs.edge, regs.emax, nb.get_num_threads())
 
     def _whole(self, fr: Frame, js, posed, slack: float = 0.0) -> None:
         """One constraint on the whole mesh's volume, moving the bent joints' zones;
@@ -454,7 +186,7 @@ class Volume(Stage):
         X = fr.surface
         A, B = posed
         m = np.zeros(len(v))
-        _mobility(X, mob, Z, ZJ, ZL, ZS, fr.fade, A, B, self.regions.R, m)
+        zone_mobility(X, mob, Z, ZJ, ZL, ZS, fr.fade, A, B, self.regions.R, m)
         if self.params["volume_regions"] == "outside":
             # Inflating the joint regions themselves can push skin through skin where
             # two of them meet (CesiumMan's chest): grow the limbs between them instead.
