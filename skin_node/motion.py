@@ -51,9 +51,9 @@ def character_skeleton(character: str) -> Skeleton:
     if character in BUILTIN_CHARACTERS:
         # The skeleton does not depend on the density: the coarsest mesh is cheapest.
         return BUILTIN_CHARACTERS[character](surface_vertices=2000)[2]
-    if is_gltf(character):
-        from .io.gltf import load_gltf
-        return load_gltf(character).skeleton
+    if is_gltf(character):      # every skin's joints, leaf tips from the body, as load_character
+        from .io.gltf import load_gltf_scene
+        return load_gltf_scene(character).split_body().skeleton
     if Path(str(character)).suffix.lower() in (".yaml", ".yml"):
         from .io.character_file import load_character_file
         return load_character_file(Path(character))[2]
@@ -106,8 +106,8 @@ def file_clip(character: str, name: str, fps: float | None = None):
     own = file_animations(character)
     if not explicit and key not in own:
         return None
-    from .io.gltf import load_gltf
-    return load_gltf(character).clip(key, fps=float(fps or FPS))
+    from .io.gltf import load_gltf_scene
+    return load_gltf_scene(character).clip(key, fps=float(fps or FPS))
 
 
 def load_motion(character: str, clip: str = "", bvh: str = "", mapping: str = "",
