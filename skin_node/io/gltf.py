@@ -61,7 +61,46 @@ The file is parsed with ``pygltflib`` (structure) and decoded with numpy
 :func:`load_gltf_scene` reads every mesh of the scene instead (skinned meshes
 on any number of skins joined into one skeleton, meshes without a skin as
 rigid parts of the joint above them, each part reported with its vertex count,
-open or closed); it is not yet what :func:`~skin_node.load_character` uses.
+open or closed), and :meth:`GltfScene.split_body` makes one character of
+them: that is what :func:`~skin_node.load_character` reads.
+
+Supported glTF features
+-----------------------
+``load_character("FILE.glb")`` (and ``.gltf``, with embedded ``data:``
+buffers or ``.bin`` files beside it; glTF 2.0 only) poses every mesh of the
+file's default scene (all nodes when it has no scene) on one skeleton:
+
+* **Skinned meshes on any number of skins**, ``JOINTS_n/WEIGHTS_n`` (up to
+  four sets of four), with inverse bind matrices (identity when absent): the
+  skins' joints are joined into one skeleton, a joint two skins share once,
+  separate trees under their nearest common ancestor node. Joints must be
+  rigid (no non-uniform scale in the bind pose).
+* **Meshes without a skin** are rigid parts of the nearest joint above them
+  (through any non-joint nodes, whose rest transforms are kept) and follow it
+  exactly; with no joint above them they are static. A file with no skin at
+  all (a robot of rigid links) makes every mesh node and the nodes above it
+  joints.
+* **What each part gets**: the closed skinned meshes are the simulated body
+  (every stage of the pipeline: volume, contact between its meshes);
+  skinned meshes that share vertex positions are joined first, so a
+  character split into meshes is solved whole. Open skinned meshes and
+  closed ones under 1% of the largest one's volume (eyes, teeth) are
+  skinned by dual quaternions with the file's weights; rigid meshes are
+  carried by their joint; static ones stay at rest. Without any closed
+  skinned mesh, every part is posed so and no stage runs. The published
+  surface is the body's vertices, then every other part's in node order
+  (:mod:`skin_node.parts`).
+* **Primitives**: triangle lists, strips and fans, indexed or not; float,
+  normalized or integer accessors (``KHR_mesh_quantization``), sparse
+  accessors, interleaved buffer views. Vertices split at UV seams are merged
+  by position per part; the exporter writes the file's own vertices again.
+* **Animation**: as :func:`gltf_clip` says (LINEAR, STEP, CUBICSPLINE).
+* **Not read, with a start-up line saying so**: points and lines primitives,
+  meshes left without triangles, morph targets (the base shape is posed),
+  mesh nodes outside the scene. **Refused by name**: files that require
+  ``KHR_draco_mesh_compression``, ``EXT_meshopt_compression`` or
+  ``EXT_mesh_gpu_instancing``. Materials, textures, cameras and lights are
+  ignored.
 
 Errors are :class:`~skin_node.io.character_file.CharacterFileError`
 (a ``ValueError``) whose message starts with the file path.
@@ -90,6 +129,10 @@ _COMPONENTS = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16,
 _WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 _MERGE_TOL = 1e-6
 _MISMATCH_POS, _MISMATCH_ROT = 1e-4, 1e-3
+#: Required extensions whose geometry this reader cannot decode.
+_UNREAD_EXTENSIONS = {"KHR_draco_mesh_compression": "Draco-compressed meshes",
+                      "EXT_meshopt_compression": "meshopt-compressed buffers",
+                      "EXT_mesh_gpu_instancing": "instanced meshes"}
 #: A closed skinned mesh with less than this share of the largest closed one's
 #: volume (eyes, teeth, buttons) rides along with the body instead of being solved.
 BODY_MIN_SHARE = 0.01
@@ -340,6 +383,10 @@ def _read_document(path: Path):
     version = str(getattr(g.asset, "version", "") or "")
     if not version.startswith("2"):
         _fail(path, f"glTF version {version or '?'} is not supported (expected 2.0)")
+    unread = [e for e in g.extensionsRequired or [] if e in _UNREAD_EXTENSIONS]
+    if unread:      # their geometry is not in the accessors this reader decodes
+        what = ", ".join(f"{e} ({_UNREAD_EXTENSIONS[e]})" for e in unread)
+        _fail(path, f"needs {what}, which is not read; export the file without it")
     return g
 
 
