@@ -4,14 +4,17 @@ from __future__ import annotations
 import hashlib
 import inspect
 import sys
+import warnings
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 
 from .builtin import characters as chars
 from .io.character_file import load_character_file, read_closed_mesh
-from .io.gltf import load_gltf
+from .io.gltf import load_gltf_scene
+from .parts import Part, Passengers
 from .rigging.build import Rig, RigOptions, Steps, cache_dir, cached_rig
 from .rigging.embed import fit_template
 from .rigging.regions import JointRegions
@@ -29,22 +32,66 @@ class Character:
     ----------
     name : str
     V : (n, 3) float
-        Rest surface vertices, metres.
+        The simulated body's rest surface, metres (empty when a file has no
+        closed skinned mesh).
     F : (m, 3) int
-        Closed surface triangles, outward facing.
+        Its closed surface triangles, outward facing.
     skeleton : Skeleton
-    rig : Rig
-        Tet mesh, embedding, weights and constraint rest values.
+    rig : Rig or None
+        Tet mesh, embedding, weights and constraint rest values of the body
+        (None without a body).
     options : RigOptions
+    passengers : Passengers or None
+        Parts posed after the body without the stages (:mod:`skin_node.parts`).
+    parts : list of Part
+        Every mesh of the character, in the file's node order, and what it
+        gets (a built-in or YAML character: one part, the body).
+    notes : list of str
+        What of the file was not read and why, for start-up lines.
+    file_order, file_faces : (n_file,) int, (m_file, 3) int or None
+        A glTF character's own vertex layout: the surface row of every file
+        vertex (body parts, then passengers, each in node order) and the
+        file's triangles over them, so ``surface_V[file_order]`` carries the
+        file's UVs again (what the exporter writes).
     """
 
     name: str
     V: np.ndarray
     F: np.ndarray
     skeleton: Skeleton
-    rig: Rig
+    rig: Rig | None
     options: RigOptions
+    passengers: Passengers | None = None
+    parts: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
+    file_order: np.ndarray | None = None
+    file_faces: np.ndarray | None = None
     _regions: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if not self.parts:
+            self.parts = [Part(self.name, "skinned", "solved", np.arange(len(self.V)),
+                               len(self.V), len(self.F), "the character's mesh")]
+
+    @cached_property
+    def surface_V(self) -> np.ndarray:
+        """(n + p, 3) rest points of the whole surface: the body's, then the
+        passengers' (``V`` itself when there are none); the rows of
+        :meth:`skin_node.Pipeline.deform`, ``skin/points`` and ``skin/mesh``."""
+        if not self.passengers:
+            return self.V
+        return np.concatenate([self.V, self.passengers.V])
+
+    @cached_property
+    def surface_F(self) -> np.ndarray:
+        """Triangles over :attr:`surface_V` (``F`` itself without passengers)."""
+        if not self.passengers:
+            return self.F
+        return np.concatenate([self.F, self.passengers.F + len(self.V)])
+
+    def part_lines(self) -> list:
+        """One line per part (:meth:`Part.describe`), then the notes."""
+        return [p.describe() for p in self.parts] + list(self.notes)
 
     def regions(self, scheme: str = "character") -> JointRegions:
         """The :class:`~skin_node.rigging.regions.JointRegions` of the weighting
@@ -110,8 +157,10 @@ def load_character(spec: str, surface_vertices: int | None = None, tet_count: in
     ----------
     spec : str
         ``"arm"``, ``"humanoid"``, or a path to a character file: ``.yaml``
-        (:mod:`skin_node.io.character_file`) or a skinned ``.glb`` / ``.gltf``
-        (:mod:`skin_node.io.gltf`; seam vertices merged, ``V`` in merged order).
+        (:mod:`skin_node.io.character_file`) or a ``.glb`` / ``.gltf``: every
+        mesh of its scene (:meth:`skin_node.io.gltf.GltfScene.split_body`), the
+        closed skinned ones as the simulated body ``V, F`` (seam vertices merged,
+        in the file's order), every other one as a passenger (:mod:`skin_node.parts`).
     surface_vertices : int, optional
         Target surface vertex count of a built-in (its default when None or 0).
     tet_count : int, optional
@@ -134,7 +183,7 @@ def load_character(spec: str, surface_vertices: int | None = None, tet_count: in
     """
     steps = Steps(f"set-up of {spec}", enabled=progress)
     spec = str(spec)
-    file_w = None
+    file_w, layout = None, {}
     if not (("/" in spec) or ("." in spec)):
         if spec not in chars.DEFAULT_SURFACE_VERTICES:
             raise ValueError(f"{spec}: unknown character (expected 'arm', 'humanoid' "
@@ -146,8 +195,13 @@ def load_character(spec: str, surface_vertices: int | None = None, tet_count: in
         name = spec
         default_tets = DEFAULT_TETS[spec]
     elif Path(spec).suffix.lower() in (".glb", ".gltf"):
-        g = load_gltf(Path(spec))
+        scene = load_gltf_scene(Path(spec))
+        for w in scene.warnings:
+            warnings.warn(f"{spec}: {w}", UserWarning, stacklevel=2)
+        g = scene.split_body()
         V, F, skel, file_w = g.V, g.F, g.skeleton, (g.Widx, g.Wval)
+        layout = {"passengers": g.passengers, "parts": g.parts, "notes": g.notes,
+                  "file_order": g.file_order, "file_faces": g.file_faces}
         name = Path(spec).stem
         default_tets = max(6000, 2 * len(V))
     else:
@@ -160,12 +214,14 @@ def load_character(spec: str, surface_vertices: int | None = None, tet_count: in
     if opt.weights == "file" and file_w is None:
         raise ValueError(f"{spec}: weights 'file' needs a skinned glTF character "
                          "(this one has no skin weights)")
+    rig = None
     try:
-        rig = cached_rig(V, F, skel, opt, steps, use_cache=cache, weights=file_w)
+        if len(V):          # without a closed body, no tets: every part is a passenger
+            rig = cached_rig(V, F, skel, opt, steps, use_cache=cache, weights=file_w)
     except ValueError as e:
         raise ValueError(f"{spec}: {e}") from None
     steps("ready")
-    return Character(name=name, V=V, F=F, skeleton=skel, rig=rig, options=opt)
+    return Character(name=name, V=V, F=F, skeleton=skel, rig=rig, options=opt, **layout)
 
 
 def load_embedded(mesh_path: str | Path, template: str | Path = "humanoid", up=None,

@@ -28,7 +28,7 @@ from .builtin.clips import CLIP_NAMES, Clip, default_clip_name, make_clip
 from .character import load_character
 from .io.bvh import load_bvh
 from .io.character_file import load_character_file
-from .io.gltf import gltf_animation_names, load_gltf
+from .io.gltf import gltf_animation_names, load_gltf_scene
 from .retarget import load_mapping, retarget_bvh
 from .skeleton import Skeleton
 
@@ -58,8 +58,8 @@ def character_skeleton(character: str) -> Skeleton:
     if character in BUILTIN_CHARACTERS:
         # The skeleton does not depend on the density: the coarsest mesh is cheapest.
         return BUILTIN_CHARACTERS[character](surface_vertices=2000)[2]
-    if is_gltf(character):
-        return load_gltf(character).skeleton
+    if is_gltf(character):      # every skin's joints, leaf tips from the body, as load_character
+        return load_gltf_scene(character).split_body().skeleton
     if Path(str(character)).suffix.lower() in (".yaml", ".yml"):
         return load_character_file(Path(character))[2]
     return load_character(character).skeleton
@@ -109,7 +109,7 @@ def file_clip(character: str, name: str, fps: float | None = None):
     own = file_animations(character)
     if not explicit and key not in own:
         return None
-    return load_gltf(character).clip(key, fps=float(fps or FPS))
+    return load_gltf_scene(character).clip(key, fps=float(fps or FPS))
 
 
 def load_motion(character: str, clip: str = "", bvh: str = "", mapping: str = "",

@@ -16,12 +16,15 @@ Topics (relative, so they can be remapped)
     One per processed frame, stamp copied from the input, ``frame_id`` param.
 ``skin/mesh`` (pub, shape_msgs/Mesh)
     The rest surface, published once: RELIABLE + TRANSIENT_LOCAL so a late
-    subscriber gets the topology (vertex order matches ``skin/points``).
+    subscriber gets the topology (vertex order matches ``skin/points``). Both
+    cover every part of the character: the simulated body's vertices, then
+    each passenger's in the file's node order (:mod:`skin_node.parts`).
 ``skin/marker`` (pub, visualization_msgs/Marker TRIANGLE_LIST)
     Only built while someone subscribes.
 ``skin/diagnostics`` (pub, diagnostic_msgs/DiagnosticArray, 1 Hz)
     ms per stage, frames processed / skipped as stale / rejected by reason,
-    frames published by each worker, unknown joint names, jumps back in time.
+    frames published by each worker, unknown joint names, jumps back in time,
+    and ``parts``: ``name:vertices:kind:gets`` of every part.
 
 Time
 ----
@@ -207,7 +210,7 @@ class SkinNode(Node):
         self._marker_pub = self.create_publisher(Marker, "skin/marker", QOS_STREAM)
         self._mesh_pub = self.create_publisher(Mesh, "skin/mesh", QOS_LATCHED)
         self._diag_pub = self.create_publisher(DiagnosticArray, "skin/diagnostics", 10)
-        self._mesh_pub.publish(mesh_to_msg(self.character.V, self.character.F))
+        self._mesh_pub.publish(mesh_to_msg(self.character.surface_V, self.character.surface_F))
         self.add_on_set_parameters_callback(self._on_set_parameters)
         # stop() joins the workers. Daemon only for a set-up cut short by a signal
         # after this point: no pose ever reaches them then, they wait on the
@@ -219,11 +222,21 @@ class SkinNode(Node):
         self.create_subscription(JointState, "joint_states", self._on_joint_state,
                                  QOS_JOINT_STATES)
         self.create_timer(1.0, self._on_diagnostics_timer)
+        ch = self.character
+        for line in ch.part_lines():
+            self.get_logger().info(line)
+        gets = Counter()
+        for part in ch.parts:
+            gets[part.gets] += part.vertices
         self.get_logger().info(
             f"ready in {time.perf_counter() - t_start:.2f} s (warm-up deform {warm_s:.2f} s): "
-            f"character '{self.character.name}' {len(self.character.V)} vertices "
-            f"{len(self.character.F)} triangles {self.character.n_channels} channels, "
-            f"stages {stages}, {workers} worker{'s' if workers > 1 else ''}")
+            f"character '{ch.name}' {len(ch.surface_V)} vertices {len(ch.surface_F)} "
+            f"triangles {ch.n_channels} channels, {len(ch.parts)} "
+            f"part{'s' if len(ch.parts) > 1 else ''} (vertices "
+            + ", ".join(f"{n} {g}" for g, n in gets.items()) + "), "
+            + (f"stages {stages}" if ch.rig is not None else
+               f"stages {stages} idle (no closed skinned part to solve)")
+            + f", {workers} worker{'s' if workers > 1 else ''}")
 
     # ------------------------------------------------------------ parameters
     def _declare_parameters(self) -> None:
@@ -405,7 +418,8 @@ class SkinNode(Node):
         header = Header(stamp=stamp, frame_id=frame_id)
         self._points_pub.publish(vertices_to_point_cloud2(V, header))
         if self._marker_pub.get_subscription_count() > 0:
-            self._marker_pub.publish(triangle_list_marker_cdr(V, self.character.F, header))
+            self._marker_pub.publish(triangle_list_marker_cdr(V, self.character.surface_F,
+                                                              header))
         self._timings = dict(pipe.timings)
         with self._cond:                # counted together: diagnostics read them together
             self._processed += 1
@@ -433,6 +447,7 @@ class SkinNode(Node):
             "unknown_names": ",".join(sorted(unknown)),
             "unknown_name_count": len(unknown),
             "time_jumps_back": self._stamps.jumps_back,
+            "parts": ",".join(part.summary() for part in self.character.parts),
             "fps": float(period["frames"]),
             "ms_per_frame": period["deform_ms"] / n,
             "ms_receive_to_publish": period["latency_ms"] / n,

@@ -254,11 +254,11 @@ class Pipeline:
         self.params = default_params()
         self.set_params(**params)
         self.stage_names = stages
-        self.stages: list[Stage] = [STAGES[s](character, self.params) for s in stages]
+        self.stages: list[Stage] = self._build_stages()
         skel = character.skeleton
         self._seg_joint, self._segA, self._segB = skel.bone_segments()
         self._parents = np.asarray(skel.parents, dtype=np.int64)
-        n, k = len(character.V), len(character.rig.TV)
+        n, k = len(character.V), len(character.rig.TV) if character.rig is not None else 0
         self._buf = [np.empty((n, 3)), np.empty((k, 3)), np.empty((n, 3)), np.empty((k, 3))]
         self.timings: dict = {}
         self.counts: dict = {}
@@ -283,9 +283,16 @@ class Pipeline:
             self.params.get("weight_scheme")
         self.params.update(checked)
         if rebuild and getattr(self, "stages", None):
-            self.stages = [STAGES[s](self.character, self.params) for s in self.stage_names]
+            self.stages = self._build_stages()
         for s in getattr(self, "stages", []):
             s.reset()
+
+    def _build_stages(self) -> list:
+        """The stages on the character's body; none when it has no body (no
+        closed skinned mesh: every part is a passenger)."""
+        if self.character.rig is None:
+            return []
+        return [STAGES[s](self.character, self.params) for s in self.stage_names]
 
     def frame(self, q: np.ndarray) -> Frame:
         """Forward kinematics of pose ``q`` into a fresh :class:`Frame`."""
@@ -310,10 +317,15 @@ class Pipeline:
     def deform(self, q: np.ndarray) -> np.ndarray:
         """Deform the surface into pose ``q``.
 
+        The stages deform the body (``character.V``); the passengers
+        (``character.passengers``: :mod:`skin_node.parts`) are then posed
+        from the same frame and follow it.
+
         Returns
         -------
-        (n, 3) float64
-            Surface vertices in the order of ``character.V`` (a new array).
+        (n + p, 3) float64
+            The whole surface, in the order of ``character.surface_V`` (the
+            body's vertices, then the passengers'; a new array).
         """
         t0 = time.perf_counter()
         # numba's thread count is per calling thread (the node deforms in a worker)
@@ -325,7 +337,16 @@ class Pipeline:
             a = time.perf_counter()
             stage(fr)
             t[name] = (time.perf_counter() - a) * 1e3
-        out = fr.surface.copy()
+        riders = self.character.passengers
+        if riders:
+            a = time.perf_counter()
+            n = len(fr.surface)
+            out = np.empty((n + len(riders), 3))
+            out[:n] = fr.surface
+            riders.pose(fr.M, out[n:])
+            t["passengers"] = (time.perf_counter() - a) * 1e3
+        else:
+            out = fr.surface.copy()
         t["total"] = (time.perf_counter() - t0) * 1e3
         self.timings = t
         self.counts = fr.counts

@@ -73,6 +73,16 @@ def meshes():
                          np.array([[0, 2, 1], [0, 3, 2]]))], None)}
 
 
+def pose_tracks(spine_rest, head_rest) -> list:
+    """(node, path, values at 0 and 1 s): hips turned and moved, spine, head and
+    left leg turned (nodes 1 to 4 of both test files)."""
+    return [(1, "rotation", [[0, 0, 0, 1], quat([0, 0, 1], 35)]),
+            (1, "translation", [[0, 1, 0], [0.2, 1.1, -0.3]]),
+            (2, "rotation", [spine_rest, quat([1, 0, 0.3], 40)]),
+            (3, "rotation", [head_rest, quat([0, 1, 1], -50)]),
+            (4, "rotation", [[0, 0, 0, 1], quat([1, 0, 0], -60)])]
+
+
 def smooth_weights(V_world, joints) -> np.ndarray:
     """(p, 4) weights over a skin's three joints, by inverse squared distance."""
     P = rest_world()[joints, :3, 3]
@@ -80,22 +90,55 @@ def smooth_weights(V_world, joints) -> np.ndarray:
     return np.c_[w / w.sum(1, keepdims=True), np.zeros(len(w))]
 
 
-def write_scene(path: Path) -> Path:
-    W = rest_world()
-    blobs, acc = [], []
+class Blobs:
+    """Accessors over one binary chunk, collected while a .glb is written."""
 
-    def add(arr, kind, comp, dtype):
+    def __init__(self) -> None:
+        self.blobs, self.accessors = [], []
+
+    def add(self, arr, kind, comp, dtype) -> int:
+        """A new accessor (and buffer view) of ``arr``; its index."""
         arr = np.ascontiguousarray(arr, dtype)
-        blobs.append(arr.tobytes())
+        self.blobs.append(arr.tobytes())
         extra = {}
         if kind == "VEC3" and comp == 5126:
             extra = {"min": arr.min(0).tolist(), "max": arr.max(0).tolist()}
         if kind == "SCALAR" and comp == 5126:
             extra = {"min": [float(arr.min())], "max": [float(arr.max())]}
-        acc.append(pygltflib.Accessor(bufferView=len(blobs) - 1, componentType=comp,
-                                      count=len(arr), type=kind, **extra))
-        return len(acc) - 1
+        self.accessors.append(pygltflib.Accessor(bufferView=len(self.blobs) - 1,
+                                                 componentType=comp, count=len(arr), type=kind,
+                                                 **extra))
+        return len(self.accessors) - 1
 
+    def animation(self, name: str, tracks, t=(0.0, 1.0)) -> "pygltflib.Animation":
+        """A LINEAR animation of ``(node, path, values at t)`` tracks."""
+        samplers, channels = [], []
+        for node, what, values in tracks:
+            ti = self.add(np.asarray(t), "SCALAR", 5126, np.float32)
+            vi = self.add(np.asarray(values, float), "VEC4" if what == "rotation" else "VEC3",
+                          5126, np.float32)
+            samplers.append(pygltflib.AnimationSampler(input=ti, output=vi))
+            channels.append(pygltflib.AnimationChannel(
+                sampler=len(samplers) - 1,
+                target=pygltflib.AnimationChannelTarget(node=node, path=what)))
+        return pygltflib.Animation(name=name, samplers=samplers, channels=channels)
+
+    def document(self) -> "pygltflib.GLTF2":
+        """A glTF 2.0 document holding the accessors in one buffer (its binary chunk)."""
+        offs = np.concatenate([[0], np.cumsum([len(b) for b in self.blobs])]).tolist()
+        g = pygltflib.GLTF2(asset=pygltflib.Asset(version="2.0"))
+        g.buffers = [pygltflib.Buffer(byteLength=offs[-1])]
+        g.bufferViews = [pygltflib.BufferView(buffer=0, byteOffset=offs[i], byteLength=len(b))
+                         for i, b in enumerate(self.blobs)]
+        g.accessors = self.accessors
+        g.set_binary_blob(b"".join(self.blobs))
+        return g
+
+
+def write_scene(path: Path) -> Path:
+    W = rest_world()
+    buf = Blobs()
+    add = buf.add
     gl_meshes, mesh_index = [], {}
     for name, (prims, skin) in meshes().items():
         out = []
@@ -116,35 +159,16 @@ def write_scene(path: Path) -> Path:
         skins.append(pygltflib.Skin(joints=joints, inverseBindMatrices=add(
             IBM.transpose(0, 2, 1).reshape(len(joints), 16), "MAT4", 5126, np.float32)))
     # The pose: one animation with keys at 0 and 1 s.
-    t = np.array([0.0, 1.0])
-    tracks = [(1, "rotation", [[0, 0, 0, 1], quat([0, 0, 1], 35)]),
-              (1, "translation", [[0, 1, 0], [0.2, 1.1, -0.3]]),
-              (2, "rotation", [NODES[2][3], quat([1, 0, 0.3], 40)]),
-              (3, "rotation", [NODES[3][3], quat([0, 1, 1], -50)]),
-              (4, "rotation", [[0, 0, 0, 1], quat([1, 0, 0], -60)])]
-    samplers, channels = [], []
-    for node, what, values in tracks:
-        ti = add(t, "SCALAR", 5126, np.float32)
-        vi = add(np.asarray(values, float), "VEC4" if what == "rotation" else "VEC3", 5126,
-                 np.float32)
-        samplers.append(pygltflib.AnimationSampler(input=ti, output=vi))
-        channels.append(pygltflib.AnimationChannel(sampler=len(samplers) - 1,
-                                                   target=pygltflib.AnimationChannelTarget(
-                                                       node=node, path=what)))
-    offs = np.concatenate([[0], np.cumsum([len(b) for b in blobs])]).tolist()
-    g = pygltflib.GLTF2(asset=pygltflib.Asset(version="2.0"))
-    g.buffers = [pygltflib.Buffer(byteLength=offs[-1])]
-    g.bufferViews = [pygltflib.BufferView(buffer=0, byteOffset=offs[i], byteLength=len(b))
-                     for i, b in enumerate(blobs)]
-    g.accessors, g.meshes, g.skins = acc, gl_meshes, skins
+    pose = buf.animation("pose", pose_tracks(NODES[2][3], NODES[3][3]))
+    g = buf.document()
+    g.meshes, g.skins = gl_meshes, skins
     kids = {i: [k for k, n in enumerate(NODES) if n[1] == i] or None for i in range(len(NODES))}
     g.nodes = [pygltflib.Node(name=n, translation=tt, rotation=r, children=kids[i],
                               mesh=mesh_index.get(m), skin=meshes()[m][1] if m else None)
                for i, (n, _, tt, r, m) in enumerate(NODES)]
-    g.animations = [pygltflib.Animation(name="pose", samplers=samplers, channels=channels)]
+    g.animations = [pose]
     g.scenes = [pygltflib.Scene(nodes=[i for i, n in enumerate(NODES) if n[1] < 0])]
     g.scene = 0
-    g.set_binary_blob(b"".join(blobs))
     g.save_binary(str(path))
     return path
 

@@ -276,6 +276,53 @@ def test_a_gltf_characters_own_clip_through_the_node(tmp_path):
     assert moved > 0.3                  # the walk moves the leg, root and all
 
 
+def test_every_part_of_a_gltf_character_is_published(tmp_path):
+    """A glTF character of several meshes on two skins, rigid and static parts,
+    its own clip replayed through skin_bag: skin/points and skin/mesh cover
+    every part (the body, then the passengers), the start-up lines and the
+    diagnostics say what each part gets."""
+    from shape_msgs.msg import Mesh
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from skin_node.motion import load_motion
+    from test_gltf_character import write_character
+    glb = write_character(tmp_path / "character.glb")
+    ch = skin_node.load_character(str(glb), progress=False)
+    clip = load_motion(str(glb), "pose", fps=10.0)
+    t0, dt = 1_700_000_000 * 10**9, 10**8
+    stream = [(t0 + k * dt, joint_state(t0 + k * dt, clip.channel_names, q))
+              for k, q in enumerate(clip.frames)]
+    write_bag(tmp_path / "in", "mcap", stream)
+    meshes = []
+    with running_node(tmp_path, "-p", f"character:={glb}") as (proc, env, log):
+        out = play_and_record(env, tmp_path / "in", tmp_path / "out", "--lockstep", "5")
+        with ros_client(env, "skin_node_parts_test") as (node, ex, set_params):
+            latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+            node.create_subscription(Mesh, "skin/mesh", meshes.append, latched)
+            deadline = time.monotonic() + 10.0
+            while not meshes and time.monotonic() < deadline:
+                ex.spin_once(timeout_sec=0.1)
+        text = log.read_text()
+    assert f"the node answered {len(stream)} of {len(stream)}" in out, out
+    clouds, diag = read_outputs(tmp_path / "out")
+    assert [stamp_ns(c) for c in clouds] == [t for t, _ in stream]
+    pipe = skin_node.Pipeline(ch)
+    for c, q in zip(clouds, clip.frames):
+        assert c.width == len(ch.surface_V) > len(ch.V)
+        assert np.abs(point_cloud2_to_vertices(c) - pipe.deform(q)).max() < 1e-6
+    assert meshes, "no skin/mesh"
+    mesh = meshes[0]
+    rest = np.array([[p.x, p.y, p.z] for p in mesh.vertices])
+    assert len(rest) == len(ch.surface_V) and np.abs(rest - ch.surface_V).max() < 1e-12
+    assert np.array_equal([t.vertex_indices for t in mesh.triangles], ch.surface_F)
+    assert diag["parts"] == ",".join(p.summary() for p in ch.parts)
+    assert diag["parts"].startswith("torso:98:skinned:solved,legs:52:skinned:solved,skirt:48")
+    for line in ch.part_lines():        # every part and every skipped mesh, before 'ready'
+        assert line in text.split("]: ready in")[0], line
+    assert f"character 'character' {len(ch.surface_V)} vertices" in text
+    assert "7 parts (vertices 150 solved, 56 skinned, 16 rigid, 4 static)" in text
+
+
 def _replayed_bag(tmp_path: Path, source: str) -> tuple[Path, list[int], list[str], list[str]]:
     """(bag, its stamps, skin_bag arguments, node arguments) of a generated arm bag
     or of the first 150 messages of the real PR2 one (skipped when absent)."""

@@ -107,7 +107,7 @@ def run_case(method: Method, scene: Scene, case: str, frames: int | None = None,
     worst_m = inverted = inverted_all = crossings = pairs = folds = 0.0
     T = len(Q)
     for t, q in enumerate(Q):
-        V = pipe.deform(q)
+        V = pipe.deform(q)[:len(ch.V)]        # the body: passengers have no failure modes
         fr = pipe.last_frame
         if not np.all(np.isfinite(V)):
             nan = True
@@ -125,7 +125,7 @@ def run_case(method: Method, scene: Scene, case: str, frames: int | None = None,
             folds = max(folds, metrics.surface(V)["folds90"])
         if progress is not None:
             progress.update(1)
-    R = pipe.deform(ch.skeleton.rest_pose())
+    R = pipe.deform(ch.skeleton.rest_pose())[:len(ch.V)]
     drift = float(np.sqrt(((R - ch.V) ** 2).sum(1).max()) * 1e3) if np.all(np.isfinite(R)) \
         else float("inf")
     failed = []

@@ -131,27 +131,38 @@ def _mesh(path: Path, doc: dict):
 def check_surface(path, V: np.ndarray, F: np.ndarray) -> None:
     """Raise :class:`CharacterFileError` unless ``V, F`` is a closed, manifold,
     consistently oriented surface with finite coordinates."""
+    problem = surface_problem(V, F)
+    if problem:
+        _fail(path, problem)
+
+
+def surface_problem(V: np.ndarray, F: np.ndarray) -> str | None:
+    """What keeps ``V, F`` from being a closed, manifold, consistently oriented
+    surface with finite coordinates and positive volume (None: nothing)."""
     if not np.all(np.isfinite(V)):
-        _fail(path, f"{int((~np.isfinite(V)).any(1).sum())} vertices have NaN or Inf coordinates")
+        return f"{int((~np.isfinite(V)).any(1).sum())} vertices have NaN or Inf coordinates"
+    if len(F) == 0:
+        return "surface has no triangles"
     if F.min() < 0 or F.max() >= len(V):
-        _fail(path, f"faces index vertices outside 0..{len(V) - 1}")
+        return f"faces index vertices outside 0..{len(V) - 1}"
     E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
     key = np.sort(E, axis=1)
     _, counts = np.unique(key, axis=0, return_counts=True)
     if np.any(counts == 1):
-        _fail(path, f"surface is open: {int((counts == 1).sum())} edges have one triangle "
-                    "(the deformer needs a closed surface)")
+        return (f"surface is open: {int((counts == 1).sum())} edges have one triangle "
+                "(the deformer needs a closed surface)")
     if np.any(counts > 2):
-        _fail(path, f"surface is non-manifold: {int((counts > 2).sum())} edges have more "
-                    "than two triangles")
+        return (f"surface is non-manifold: {int((counts > 2).sum())} edges have more "
+                "than two triangles")
     _, dcounts = np.unique(E, axis=0, return_counts=True)
     if np.any(dcounts > 1):
-        _fail(path, "triangles are not consistently oriented")
+        return "triangles are not consistently oriented"
     a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
     vol = float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
     if not vol > 0:
-        _fail(path, f"surface encloses no positive volume ({vol:.3g} m^3): flip its triangles "
-                    "to face outwards")
+        return (f"surface encloses no positive volume ({vol:.3g} m^3): flip its triangles "
+                "to face outwards")
+    return None
 
 
 def read_closed_mesh(path: str | Path):

@@ -14,8 +14,9 @@ memory stays flat in the number of frames:
   of the saved samples); the text file is streamed by this module, since a
   text layer is only ever written whole. A glTF character is written in the
   file's vertex order with the file's triangles (seam vertices duplicated
-  again), so the file's UVs still apply; built-ins and YAML characters in
-  their own order.
+  again), so the file's UVs still apply: every part of it, the simulated
+  body's meshes first, then the passengers' (``Character.file_order``), each
+  in the file's node order; built-ins and YAML characters in their own order.
 * **glTF 2.0** (``.glb``): the first frame is the base mesh, every frame
   after it is a morph target, and one animation switches target ``k`` on at
   frame ``k`` (LINEAR, so players in between interpolate two frames). Each
@@ -65,7 +66,7 @@ from ..character import load_character
 from ..motion import GLTF_PREFIX, load_motion
 from ..pipeline import Pipeline
 from .bags import BagReader
-from .gltf import Y_UP_TO_Z_UP, _read_document, _Reader, load_gltf
+from .gltf import Y_UP_TO_Z_UP, _read_document, _Reader
 
 #: The project's z up to glTF's y up (inverse of :data:`skin_node.io.gltf.Y_UP_TO_Z_UP`).
 Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
@@ -550,7 +551,8 @@ def read_bag_points(path: str | Path, topic: str = "skin/points") -> tuple[np.nd
 # ---------------------------------------------------------------------- CLI
 def deform_frames(character, frames: np.ndarray, pipeline: str = "default",
                   **params) -> Iterator[np.ndarray]:
-    """(n, 3) surface of ``character`` for each pose of ``frames`` (T, C), one at a time."""
+    """(n, 3) whole surface (``character.surface_V``'s rows) of ``character`` for
+    each pose of ``frames`` (T, C), one at a time."""
     pipe = Pipeline.preset(character, pipeline, **params)
     for q in frames:
         yield pipe.deform(q)
@@ -625,9 +627,9 @@ def main(argv: list[str] | None = None) -> int:
 
             def stepped(it=frames):
                 for k, X in enumerate(it):
-                    if X.shape[0] != len(ch.V):
+                    if X.shape[0] != len(ch.surface_V):
                         raise ValueError(f"{args.bag}: {X.shape[0]} points per message, but "
-                                         f"{args.character} has {len(ch.V)} vertices")
+                                         f"{args.character} has {len(ch.surface_V)} vertices")
                     if k % args.step == 0:
                         yield X
             source = stepped()
@@ -638,10 +640,9 @@ def main(argv: list[str] | None = None) -> int:
             source, total = deform_frames(ch, q[:args.frames or None], args.pipeline), len(q)
         total = min(total, args.frames) if args.frames else total
         fps = fps / args.step
-        faces, to_file = ch.F, (lambda X: X)
-        if Path(args.character).suffix.lower() in (".glb", ".gltf"):
-            g = load_gltf(args.character)
-            faces, to_file = g.file_faces, g.to_file_order
+        faces, to_file = ch.surface_F, (lambda X: X)
+        if ch.file_order is not None:       # a glTF file's own vertices, so its UVs apply
+            faces, to_file = ch.file_faces, (lambda X: X[ch.file_order])
         writers = [open_writer(out, faces, fps, ch.name, args.quantize) for out in args.output]
         t0 = last = time.monotonic()
         for k, X in enumerate(source):

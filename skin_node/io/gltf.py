@@ -61,7 +61,46 @@ The file is parsed with ``pygltflib`` (structure) and decoded with numpy
 :func:`load_gltf_scene` reads every mesh of the scene instead (skinned meshes
 on any number of skins joined into one skeleton, meshes without a skin as
 rigid parts of the joint above them, each part reported with its vertex count,
-open or closed); it is not yet what :func:`~skin_node.load_character` uses.
+open or closed), and :meth:`GltfScene.split_body` makes one character of
+them: that is what :func:`~skin_node.load_character` reads.
+
+Supported glTF features
+-----------------------
+``load_character("FILE.glb")`` (and ``.gltf``, with embedded ``data:``
+buffers or ``.bin`` files beside it; glTF 2.0 only) poses every mesh of the
+file's default scene (all nodes when it has no scene) on one skeleton:
+
+* **Skinned meshes on any number of skins**, ``JOINTS_n/WEIGHTS_n`` (up to
+  four sets of four), with inverse bind matrices (identity when absent): the
+  skins' joints are joined into one skeleton, a joint two skins share once,
+  separate trees under their nearest common ancestor node. Joints must be
+  rigid (no non-uniform scale in the bind pose).
+* **Meshes without a skin** are rigid parts of the nearest joint above them
+  (through any non-joint nodes, whose rest transforms are kept) and follow it
+  exactly; with no joint above them they are static. A file with no skin at
+  all (a robot of rigid links) makes every mesh node and the nodes above it
+  joints.
+* **What each part gets**: the closed skinned meshes are the simulated body
+  (every stage of the pipeline: volume, contact between its meshes);
+  skinned meshes that share vertex positions are joined first, so a
+  character split into meshes is solved whole. Open skinned meshes and
+  closed ones under 1% of the largest one's volume (eyes, teeth) are
+  skinned by dual quaternions with the file's weights; rigid meshes are
+  carried by their joint; static ones stay at rest. Without any closed
+  skinned mesh, every part is posed so and no stage runs. The published
+  surface is the body's vertices, then every other part's in node order
+  (:mod:`skin_node.parts`).
+* **Primitives**: triangle lists, strips and fans, indexed or not; float,
+  normalized or integer accessors (``KHR_mesh_quantization``), sparse
+  accessors, interleaved buffer views. Vertices split at UV seams are merged
+  by position per part; the exporter writes the file's own vertices again.
+* **Animation**: as :func:`gltf_clip` says (LINEAR, STEP, CUBICSPLINE).
+* **Not read, with a start-up line saying so**: points and lines primitives,
+  meshes left without triangles, morph targets (the base shape is posed),
+  mesh nodes outside the scene. **Refused by name**: files that require
+  ``KHR_draco_mesh_compression``, ``EXT_meshopt_compression`` or
+  ``EXT_mesh_gpu_instancing``. Materials, textures, cameras and lights are
+  ignored.
 
 Errors are :class:`~skin_node.io.character_file.CharacterFileError`
 (a ``ValueError``) whose message starts with the file path.
@@ -80,9 +119,11 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ..builtin.clips import Clip
+from ..metrics import mesh_volume
+from ..parts import Part, Passengers
 from ..retarget import continuous_euler
 from ..skeleton import Skeleton, matrix_to_euler_xyz
-from .character_file import CharacterFileError, check_surface
+from .character_file import CharacterFileError, check_surface, surface_problem
 
 #: glTF world (y up) to the project's world (z up): +90 degrees about x.
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -92,6 +133,13 @@ _COMPONENTS = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16,
 _WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 _MERGE_TOL = 1e-6
 _MISMATCH_POS, _MISMATCH_ROT = 1e-4, 1e-3
+#: Required extensions whose geometry this reader cannot decode.
+_UNREAD_EXTENSIONS = {"KHR_draco_mesh_compression": "Draco-compressed meshes",
+                      "EXT_meshopt_compression": "meshopt-compressed buffers",
+                      "EXT_mesh_gpu_instancing": "instanced meshes"}
+#: A closed skinned mesh with less than this share of the largest closed one's
+#: volume (eyes, teeth, buttons) rides along with the body instead of being solved.
+BODY_MIN_SHARE = 0.01
 
 
 def _fail(path, msg: str):
@@ -339,6 +387,10 @@ def _read_document(path: Path):
     version = str(getattr(g.asset, "version", "") or "")
     if not version.startswith("2"):
         _fail(path, f"glTF version {version or '?'} is not supported (expected 2.0)")
+    unread = [e for e in g.extensionsRequired or [] if e in _UNREAD_EXTENSIONS]
+    if unread:      # their geometry is not in the accessors this reader decodes
+        what = ", ".join(f"{e} ({_UNREAD_EXTENSIONS[e]})" for e in unread)
+        _fail(path, f"needs {what}, which is not read; export the file without it")
     return g
 
 
@@ -409,17 +461,44 @@ def _merge_by_position(V: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarra
     return vmap, Vm
 
 
-def _mesh_primitives(path: Path, rd: _Reader, g, node: int, skinned: bool):
+#: Primitive modes that are not triangles: skipped by :func:`load_gltf_scene`.
+_NOT_TRIANGLES = {0: "points", 1: "lines", 2: "a line loop", 3: "a line strip"}
+
+
+def _triangles(idx: np.ndarray, mode: int | None) -> np.ndarray:
+    """(t, 3) triangles of a TRIANGLES (4), TRIANGLE_STRIP (5) or TRIANGLE_FAN (6)
+    index list, as glTF 2.0 (3.7.2.1) orders their corners."""
+    if mode in (None, 4):
+        return idx.reshape(-1, 3)
+    i = np.arange(max(len(idx) - 2, 0))
+    if mode == 5:       # p_i = (v_i, v_{i + 1 + i%2}, v_{i + 2 - i%2}): every other one flipped
+        return np.stack([idx[i], idx[i + 1 + i % 2], idx[i + 2 - i % 2]], axis=1)
+    return np.stack([idx[i + 1], idx[i + 2], np.full_like(i, idx[0] if len(idx) else 0)],
+                    axis=1)
+
+
+def _mesh_primitives(path: Path, rd: _Reader, g, node: int, skinned: bool,
+                     notes: list | None = None):
     """(positions (p, 3), triangles (t, 3), joints (p, k) or None, weights (p, k) or
-    None) of every triangle primitive of node ``node``'s mesh; with ``skinned``
-    each must have JOINTS_0/WEIGHTS_0 (and any further sets)."""
+    None) of every triangle primitive of node ``node``'s mesh (triangle lists,
+    strips and fans); with ``skinned`` each must have JOINTS_0/WEIGHTS_0 (and any
+    further sets). Points and lines are refused, or, given ``notes``, skipped
+    with a line there (as morph targets are)."""
     mi = g.nodes[node].mesh
     if not 0 <= mi < len(g.meshes):
         _fail(path, f"node {node} refers to mesh {mi}, which does not exist")
     for pk, prim in enumerate(g.meshes[mi].primitives):
         where = f"mesh {mi} primitive {pk}"
-        if prim.mode not in (None, 4):
-            _fail(path, f"{where} has mode {prim.mode}; only triangles (mode 4) are supported")
+        if prim.mode in _NOT_TRIANGLES and notes is not None:
+            notes.append(f"{where} (node {node}) skipped: it is {_NOT_TRIANGLES[prim.mode]}, "
+                         "not triangles")
+            continue
+        if prim.mode not in (None, 4, 5, 6):
+            _fail(path, f"{where} has mode {prim.mode}; only triangles (mode 4, strips 5 and "
+                        "fans 6) are supported")
+        if prim.targets and notes is not None:
+            notes.append(f"{where} (node {node}): its {len(prim.targets)} morph targets are "
+                         "not applied (the base shape is posed)")
         at = prim.attributes
         if at.POSITION is None:
             _fail(path, f"{where} has no POSITION")
@@ -428,12 +507,13 @@ def _mesh_primitives(path: Path, rd: _Reader, g, node: int, skinned: bool):
             _fail(path, f"{where} POSITION is not VEC3")
         idx = rd.read(prim.indices, f"{where} indices").ravel() if prim.indices is not None \
             else np.arange(len(P))
-        if len(idx) % 3:
+        if prim.mode in (None, 4) and len(idx) % 3:
             _fail(path, f"{where}: {len(idx)} indices is not a multiple of 3")
         if len(idx) and (idx.min() < 0 or idx.max() >= len(P)):
             _fail(path, f"{where}: indices reach vertex {idx.max()} of {len(P)}")
+        tri = _triangles(idx, prim.mode)
         if not skinned:
-            yield P, idx.reshape(-1, 3), None, None
+            yield P, tri, None, None
             continue
         sets = []
         for k in range(4):
@@ -450,7 +530,7 @@ def _mesh_primitives(path: Path, rd: _Reader, g, node: int, skinned: bool):
         wv = np.concatenate([b for _, b in sets], axis=1)
         if ji.shape != wv.shape or len(ji) != len(P):
             _fail(path, f"{where}: JOINTS/WEIGHTS do not match POSITION in size")
-        yield P, idx.reshape(-1, 3), ji, wv
+        yield P, tri, ji, wv
 
 
 def _open(path) -> tuple:
@@ -858,6 +938,12 @@ class GltfPart:
     local : (4, 4) float or None
         A rigid part's mesh frame in its joint's bind frame: posed points are
         ``G_joint @ local @ p_mesh``.
+    file_V : (n_file, 3) float
+        The file's vertices (every triangle primitive, in order), rest frame as ``V``.
+    file_F : (m_file, 3) int
+        The file's triangles over ``file_V`` (collapsed ones kept).
+    file_joints, file_weights : (n_file, k) int, float or None
+        A skinned part's weights per file vertex: skeleton joints, rows summing to 1.
     """
 
     name: str
@@ -873,6 +959,10 @@ class GltfPart:
     Wval: np.ndarray | None = None
     joint: int = -1
     local: np.ndarray | None = None
+    file_V: np.ndarray | None = field(default=None, repr=False)
+    file_F: np.ndarray | None = field(default=None, repr=False)
+    file_joints: np.ndarray | None = field(default=None, repr=False)
+    file_weights: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def closed(self) -> bool:
@@ -898,7 +988,11 @@ class GltfScene:
     parts : list of GltfPart
     warnings : list of str
         Disagreements kept rather than refused (a joint two skins bind
-        differently: the first skin's bind is used).
+        differently: the first skin's bind is used; a node hierarchy whose rest
+        pose is not the inverse bind matrices' bind pose: the IBMs are used).
+    notes : list of str
+        What was not read, and why: primitives that are points or lines, morph
+        targets, meshes without triangles, mesh nodes outside the scene.
     """
 
     path: Path
@@ -906,7 +1000,9 @@ class GltfScene:
     joint_nodes: np.ndarray
     parts: list
     warnings: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
     _gltf: object = field(default=None, repr=False)
+    _bind_rotations: np.ndarray = field(default=None, repr=False)
 
     @property
     def animation_names(self) -> list:
@@ -934,17 +1030,222 @@ class GltfScene:
 
     def report(self) -> list:
         """One line per part: vertices, closed or open, skinned or rigid (and on what)."""
-        names = self.skeleton.names
-        lines = []
-        for p in self.parts:
-            on = (f"skinned on skin {p.skin}" if p.kind == "skinned" else
-                  f"rigid on joint '{names[p.joint]}'" if p.kind == "rigid" else
-                  "static (no joint above it)")
-            shape = "closed" if p.closed else f"open ({p.open_edges} edges with one triangle)"
-            lines.append(f"part '{p.name}' (node {p.node}, mesh {p.mesh}): {on}, {len(p.V)} "
-                         f"vertices ({p.n_file_vertices} in the file), {len(p.F)} triangles, "
-                         f"{shape}")
-        return lines
+        return [f"part '{p.name}' (node {p.node}, mesh {p.mesh}): {self._source(p)}, "
+                f"{len(p.V)} vertices ({p.n_file_vertices} in the file), {len(p.F)} triangles, "
+                f"{_shape(p)}" for p in self.parts]
+
+    def _source(self, p: GltfPart) -> str:
+        return (f"skinned on skin {p.skin}" if p.kind == "skinned" else
+                f"rigid on joint '{self.skeleton.names[p.joint]}'" if p.kind == "rigid" else
+                "static (no joint above it)")
+
+    def split_body(self, min_share: float = BODY_MIN_SHARE) -> "GltfBody":
+        """The scene as one character: its simulated body and its passengers.
+
+        The body is the union of the skinned parts that form closed surfaces:
+        parts that share vertex positions (a character split into meshes, or
+        over two skins) are joined first, and a joined group that is closed,
+        manifold and outward facing, with at least ``min_share`` of the largest
+        such group's volume, is body. Every other part is a passenger
+        (:mod:`skin_node.parts`): skinned ones by dual quaternions, rigid ones by
+        their joint, static ones at rest. The body's vertices come first in the
+        surface (merged over its parts, in the order of the file's vertices),
+        then every passenger's, in node order. For a file of one closed
+        skinned mesh, the body is what :func:`load_gltf` reads.
+
+        Returns
+        -------
+        GltfBody
+        """
+        parts, J = self.parts, self.skeleton.n_joints
+        shape = {i: _shape(p) for i, p in enumerate(parts)}
+        candidates = []
+        for group in _touching(parts):
+            V, F = (parts[group[0]].V, parts[group[0]].F) if len(group) == 1 else \
+                _join([parts[i] for i in group], J)[:2]
+            problem = surface_problem(V, F)
+            for i in group:
+                others = [repr(parts[j].name) for j in group if j != i]
+                also = f" (joined with {', '.join(others)})" if others else ""
+                shape[i] = f"not a body part: {problem}{also}" if problem else f"closed{also}"
+            if not problem:
+                candidates.append((group, mesh_volume(V, F)))
+        largest = max((v for _, v in candidates), default=0.0)
+        body = []
+        for group, vol in candidates:
+            if vol >= min_share * largest:
+                body += group
+                continue
+            for i in group:
+                shape[i] = (f"closed but tiny ({vol / largest:.2%} of the largest closed "
+                            f"part's volume, under {min_share:.0%})")
+        body.sort()
+        skel = self.skeleton
+        if body:
+            V, F, vmap, Widx, Wval, file_off = _join([parts[i] for i in body], J)
+            check_surface(self.path, V, F)
+            W = np.zeros((len(V), J))
+            np.put_along_axis(W, Widx, Wval, axis=1)
+            tips = _leaf_tips(skel.rest_positions, self._bind_rotations, skel.parents, V, W)
+            try:
+                skel = Skeleton(skel.names, skel.parents, skel.rest_positions,
+                                rest_rotations=skel.rest_rotations, tips=tips,
+                                limits=skel.limits)
+            except ValueError as e:
+                _fail(self.path, f"skeleton: {e}")
+        else:
+            V, F, vmap = np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64)
+            Widx, Wval, file_off = np.zeros((0, 1), np.int64), np.zeros((0, 1)), [0]
+        rows = {i: vmap[file_off[k]:file_off[k + 1]] for k, i in enumerate(body)}
+
+        # ---- passengers, after the body in node order
+        riders = [i for i in range(len(parts)) if i not in rows]
+        k = max([parts[i].Widx.shape[1] for i in riders if parts[i].kind == "skinned"],
+                default=1)
+        PV, PF, skinned, pidx, pval, rigid, joint = [], [], [], [], [], [], []
+        n = 0
+        for i in riders:
+            p = parts[i]
+            rows[i] = len(V) + n + p.vertex_map
+            PV.append(p.V)
+            PF.append(p.F + n)
+            local = n + np.arange(len(p.V))
+            if p.kind == "skinned":
+                skinned.append(local)
+                pidx.append(np.pad(p.Widx, ((0, 0), (0, k - p.Widx.shape[1]))))
+                pval.append(np.pad(p.Wval, ((0, 0), (0, k - p.Wval.shape[1]))))
+            elif p.kind == "rigid":
+                rigid.append(local)
+                joint.append(np.full(len(p.V), p.joint))
+            n += len(p.V)
+        cat = lambda a, empty: np.concatenate(a) if a else np.zeros(empty)  # noqa: E731
+        passengers = Passengers(cat(PV, (0, 3)), cat(PF, (0, 3)), cat(skinned, 0),
+                                cat(pidx, (0, k)), cat(pval, (0, k)), cat(rigid, 0),
+                                cat(joint, 0))
+        info = [Part(p.name, p.kind, "solved" if i in body else p.kind, rows[i], len(p.V),
+                     len(p.F), self._source(p), shape[i]) for i, p in enumerate(parts)]
+        order = body + riders                   # the file's vertices: the body's, then the rest
+        n_file = np.cumsum([0] + [parts[i].n_file_vertices for i in order])
+        file_faces = np.concatenate([parts[i].file_F + o for i, o in zip(order, n_file)])
+        notes = list(self.notes)
+        if not body:
+            notes.append("no closed skinned part: the whole character is posed without the "
+                         "pipeline's stages (skinned parts by dual quaternions)")
+        return GltfBody(V=V, F=F, Widx=Widx, Wval=Wval, skeleton=skel, passengers=passengers,
+                        parts=info, file_order=np.concatenate([rows[i] for i in order]),
+                        file_faces=file_faces, notes=notes)
+
+
+@dataclass
+class GltfBody:
+    """A glTF scene as one character (:meth:`GltfScene.split_body`).
+
+    Attributes
+    ----------
+    V, F : (n, 3) float, (m, 3) int
+        The simulated body: its closed skinned parts joined (empty when it
+        has none).
+    Widx, Wval : (n, k) int, float
+        The body's file weights, skeleton joints, rows summing to 1.
+    skeleton : Skeleton
+        The scene's, leaf joints' tips taken from the body's vertices (from
+        every part's when there is no body).
+    passengers : Passengers
+        Every other part, posed after the body.
+    parts : list of Part
+        Every part in node order: its rows of the surface (body, then
+        passengers) and what it gets.
+    file_order : (n_file,) int
+        Row of the surface of every file vertex: the body parts' (node order),
+        then the passengers' (node order).
+    file_faces : (m_file, 3) int
+        The file's triangles over the vertices of ``file_order``.
+    notes : list of str
+        What was not read and why (:attr:`GltfScene.notes`), and a line when
+        there is no body.
+    """
+
+    V: np.ndarray
+    F: np.ndarray
+    Widx: np.ndarray
+    Wval: np.ndarray
+    skeleton: Skeleton
+    passengers: Passengers
+    parts: list
+    file_order: np.ndarray
+    file_faces: np.ndarray
+    notes: list = field(default_factory=list)
+
+
+def _shape(p: GltfPart) -> str:
+    return "closed" if p.closed else f"open ({p.open_edges} edges with one triangle)"
+
+
+def _touching(parts: list) -> list:
+    """Groups (lists of indices, in node order) of the skinned parts that share
+    vertex positions (within ``1e-6`` of their bounding-box diagonal)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    skinned = [i for i, p in enumerate(parts) if p.kind == "skinned"]
+    if len(skinned) < 2:
+        return [[i] for i in skinned]
+    P = np.concatenate([parts[i].V for i in skinned])
+    owner = np.repeat(np.arange(len(skinned)), [len(parts[i].V) for i in skinned])
+    diag = float(np.linalg.norm(P.max(0) - P.min(0)))
+    label, _ = _merge_by_position(P, _MERGE_TOL * max(diag, 1e-12))
+    B = coo_matrix((np.ones(len(P)), (owner, label)), shape=(len(skinned), label.max() + 1))
+    _, group = connected_components((B @ B.T).tocsr(), directed=False)
+    return [[skinned[k] for k in np.flatnonzero(group == c)]
+            for c in dict.fromkeys(group.tolist())]
+
+
+def _join(parts: list, J: int) -> tuple:
+    """:func:`_merge_part` of several skinned parts' file vertices together, and
+    where each part's file vertices start: ``(V, F, vertex_map, Widx, Wval,
+    offsets)``."""
+    k = max(p.file_joints.shape[1] for p in parts)
+    off = np.cumsum([0] + [p.n_file_vertices for p in parts])
+    pad = lambda a: np.pad(a, ((0, 0), (0, k - a.shape[1])))  # noqa: E731
+    return (*_merge_part(np.concatenate([p.file_V for p in parts]),
+                         np.concatenate([p.file_F + o for p, o in zip(parts, off)]),
+                         np.concatenate([pad(p.file_joints) for p in parts]),
+                         np.concatenate([pad(p.file_weights) for p in parts]), J), off)
+
+
+def _merge_part(Vw: np.ndarray, Ff: np.ndarray, joints: np.ndarray | None,
+                weights: np.ndarray | None, J: int) -> tuple:
+    """A mesh's file points ``Vw`` (n_file, 3) merged by position (within
+    ``1e-6`` of their bounding-box diagonal) and its file triangles ``Ff`` over
+    them, collapsed ones dropped: ``(V, F, vertex_map, Widx, Wval)``. With
+    ``joints, weights`` (n_file, k) (skeleton joints, rows summing to 1), a
+    merged vertex takes the mean of its file vertices' weights, its ``k``
+    largest kept (``Widx, Wval`` are None without)."""
+    diag = float(np.linalg.norm(Vw.max(0) - Vw.min(0))) if len(Vw) else 0.0
+    vmap, V = _merge_by_position(Vw, _MERGE_TOL * max(diag, 1e-12))
+    F = vmap[Ff]
+    F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 2] != F[:, 0])]
+    if joints is None:
+        return V, F, vmap, None, None
+    W = np.zeros((len(V), J))
+    np.add.at(W, (np.repeat(vmap, joints.shape[1]), joints.ravel()), weights.ravel())
+    W /= W.sum(1, keepdims=True)
+    Widx = np.argsort(-W, axis=1, kind="stable")[:, :min(joints.shape[1], J)].astype(np.int64)
+    return V, F, vmap, Widx, np.take_along_axis(W, Widx, axis=1)
+
+
+def _moving_points(parts: list, J: int) -> tuple[np.ndarray, np.ndarray]:
+    """(points (n, 3), dense weights (n, J)) of parts: skinned ones by their
+    weights, rigid ones wholly on their joint, static ones on none."""
+    V = np.concatenate([p.V for p in parts])
+    W = np.zeros((len(V), J))
+    row = 0
+    for p in parts:
+        if p.kind == "skinned":
+            np.put_along_axis(W[row:row + len(p.V)], p.Widx, p.Wval, axis=1)
+        elif p.kind == "rigid":
+            W[row:row + len(p.V), p.joint] = 1.0
+        row += len(p.V)
+    return V, W
 
 
 def _open_edges(F: np.ndarray) -> int:
@@ -1086,6 +1387,15 @@ def load_gltf_scene(path: str | Path) -> GltfScene:
             Bs = to_world @ np.linalg.inv(IBM)
         except np.linalg.LinAlgError:
             _fail(path, f"skin {s}: an inverse bind matrix is singular")
+        Rn = Cz @ Wn[sj]            # the node hierarchy's rest pose, as load_gltf checks it
+        mis_p = float(np.abs(Rn[:, :3, 3] - Bs[:, :3, 3]).max())
+        mis_r = float(_rotation_angle(np.swapaxes(_orthonormal(Rn[:, :3, :3])[0], 1, 2)
+                                      @ _orthonormal(Bs[:, :3, :3])[0]).max())
+        scale = float(np.cbrt(abs(np.linalg.det(to_world[:3, :3]))))
+        if mis_p > _MISMATCH_POS * max(scale, 1e-9) or mis_r > _MISMATCH_ROT:
+            warn.append(f"the node hierarchy's rest pose differs from skin {s}'s inverse bind "
+                        f"matrices by up to {mis_p * 1000:.2f} mm / {np.degrees(mis_r):.2f} "
+                        "deg; using the inverse bind matrices (the vertices are bound to them)")
         for k, n in enumerate(sj):
             j = index[n]
             if not bound[j]:
@@ -1108,11 +1418,16 @@ def load_gltf_scene(path: str | Path) -> GltfScene:
                          for j in range(J)])
 
     # ---- parts
-    parts = []
+    parts, notes = [], []
     for i in mesh_nodes:
         node = g.nodes[i]
         skinned = node.skin is not None
-        prims = list(_mesh_primitives(path, rd, g, i, skinned=skinned))
+        name = node.name or (g.meshes[node.mesh].name if g.meshes[node.mesh].name else f"node{i}")
+        prims = list(_mesh_primitives(path, rd, g, i, skinned=skinned, notes=notes))
+        if not sum(len(t) for _, t, _, _ in prims):
+            notes.append(f"part '{name}' (node {i}, mesh {node.mesh}) skipped: it has no "
+                         "triangles")
+            continue
         P = np.concatenate([p for p, _, _, _ in prims])
         off = np.cumsum([0] + [len(p) for p, _, _, _ in prims])
         Ff = np.concatenate([t + o for (_, t, _, _), o in zip(prims, off)]).astype(np.int64)
@@ -1120,13 +1435,7 @@ def load_gltf_scene(path: str | Path) -> GltfScene:
             _fail(path, f"mesh {node.mesh}: vertices have NaN or Inf coordinates")
         Mw = skin_space[node.skin] if skinned else Cz @ Wn[i]
         Vw = P @ Mw[:3, :3].T + Mw[:3, 3]
-        diag = float(np.linalg.norm(Vw.max(0) - Vw.min(0))) if len(Vw) else 0.0
-        vmap, V = _merge_by_position(Vw, _MERGE_TOL * max(diag, 1e-12))
-        F = vmap[Ff]
-        F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 2] != F[:, 0])]
-        name = node.name or (g.meshes[node.mesh].name if g.meshes[node.mesh].name else f"node{i}")
-        part = GltfPart(name, i, int(node.mesh), "skinned" if skinned else "rigid", V, F, vmap,
-                        _open_edges(F) if len(F) else 0)
+        fj = fw = None
         if skinned:
             sj = [index[int(n)] for n in g.skins[node.skin].joints]
             ji = np.concatenate([a for _, _, a, _ in prims])
@@ -1141,15 +1450,16 @@ def load_gltf_scene(path: str | Path) -> GltfScene:
             if np.any(wsum <= 1e-9):
                 _fail(path, f"mesh {node.mesh}: {int((wsum <= 1e-9).sum())} vertices have "
                             "all-zero weights")
-            W = np.zeros((len(V), J))
-            np.add.at(W, (np.repeat(vmap, ji.shape[1]),
-                          np.asarray(sj)[np.clip(ji, 0, len(sj) - 1)].ravel()),
-                      (wv / wsum[:, None]).ravel())
-            W /= W.sum(1, keepdims=True)
-            k = min(ji.shape[1], J)
-            part.skin = int(node.skin)
-            part.Widx = np.argsort(-W, axis=1, kind="stable")[:, :k].astype(np.int64)
-            part.Wval = np.take_along_axis(W, part.Widx, axis=1)
+            fj, fw = np.asarray(sj)[np.clip(ji, 0, len(sj) - 1)], wv / wsum[:, None]
+        V, F, vmap, Widx, Wval = _merge_part(Vw, Ff, fj, fw, J)
+        if not len(F):
+            notes.append(f"part '{name}' (node {i}, mesh {node.mesh}) skipped: all its "
+                         "triangles collapse when vertices are merged by position")
+            continue
+        part = GltfPart(name, i, int(node.mesh), "skinned" if skinned else "rigid", V, F, vmap,
+                        _open_edges(F), file_V=Vw, file_F=Ff, file_joints=fj, file_weights=fw)
+        if skinned:
+            part.skin, part.Widx, part.Wval = int(node.skin), Widx, Wval
         else:
             above = i if i in index else joint_parent(i)
             if above >= 0:
@@ -1158,21 +1468,17 @@ def load_gltf_scene(path: str | Path) -> GltfScene:
             else:
                 part.kind, part.local = "static", Cz @ Wn[i]
         parts.append(part)
+    if not parts:
+        _fail(path, "no mesh of its scene has triangles (" + "; ".join(notes) + ")")
+    outside = [i for i, n in enumerate(g.nodes) if n.mesh is not None and i not in in_scene]
+    if outside:
+        notes.append(f"mesh nodes {outside} are not in the scene and are not read")
 
     # ---- tips of leaf joints from every part that moves with them
-    Vall = np.concatenate([p.V for p in parts])
-    Wall = np.zeros((len(Vall), J))
-    row = 0
-    for p in parts:
-        if p.kind == "skinned":
-            np.put_along_axis(Wall[row:row + len(p.V)], p.Widx, p.Wval, axis=1)
-        elif p.kind == "rigid":
-            Wall[row:row + len(p.V), p.joint] = 1.0
-        row += len(p.V)
-    tips = _leaf_tips(Pb, Rb, parents, Vall, Wall)
+    tips = _leaf_tips(Pb, Rb, parents, *_moving_points(parts, J))
     try:
         skel = Skeleton(names, parents, Pb, rest_rotations=rest_rot, tips=tips)
     except ValueError as e:
         _fail(path, f"skeleton: {e}")
     return GltfScene(path=path, skeleton=skel, joint_nodes=np.asarray(order), parts=parts,
-                     warnings=warn, _gltf=g)
+                     warnings=warn, notes=notes, _gltf=g, _bind_rotations=Rb)
