@@ -14,6 +14,7 @@ import numpy as np
 from .builtin import characters as chars
 from .io.character_file import load_character_file, read_closed_mesh
 from .io.gltf import load_gltf_scene
+from .kernels.smoothing import adjacency_weights
 from .parts import Part, Passengers
 from .rigging.build import Rig, RigOptions, Steps, cache_dir, cached_rig
 from .rigging.embed import fit_template
@@ -88,6 +89,13 @@ class Character:
         if not self.passengers:
             return self.F
         return np.concatenate([self.F, self.passengers.F + len(self.V)])
+
+    @cached_property
+    def edge_weights(self) -> np.ndarray:
+        """``1 / |edge|`` at rest for every entry of the rig's one-ring CSR
+        (``rig.adj_ptr``/``rig.adj``), built once and read by every stage
+        that smooths (:func:`~skin_node.kernels.smoothing.gather_weights`)."""
+        return adjacency_weights(self.V, self.rig.adj_ptr, self.rig.adj)
 
     def part_lines(self) -> list:
         """One line per part (:meth:`Part.describe`), then the notes."""

@@ -744,3 +744,21 @@ def test_laplacian_smooth_is_jacobi_on_the_chosen_vertices_only(relative):
     assert np.abs(got - want).max() < 1e-12
     others = np.setdiff1d(np.arange(len(X)), verts)
     assert np.array_equal(got[others], X[others]) and np.abs(got - X)[verts].max() > 0.01
+
+
+def test_region_incidence_lists_each_vertex_triangles_in_order():
+    """Every zone vertex gets exactly the zone triangles that hold it, by
+    position into the zone's triangle list, ascending (the counting sort
+    against the plain definition)."""
+    from skin_node.kernels.shape import region_incidence
+    mesh = trimesh.creation.icosphere(subdivisions=3)
+    F = np.asarray(mesh.faces, dtype=np.int64)
+    rng = np.random.default_rng(3)
+    verts = np.sort(rng.choice(len(mesh.vertices), 200, replace=False)).astype(np.int64)
+    tris = np.flatnonzero(np.isin(F, verts).any(axis=1)).astype(np.int64)
+    ptr, rows = region_incidence(F, tris, verts)
+    assert ptr.shape == (len(verts) + 1,) and ptr[-1] == len(rows)
+    for k, v in enumerate(verts):
+        want = [r for r, t in enumerate(tris) if v in F[t]]
+        assert list(rows[ptr[k]:ptr[k + 1]]) == want
+    assert ptr[-1] == np.isin(F[tris], verts).sum()

@@ -113,19 +113,39 @@ def enclosed_volume(X, F):
 
 
 def region_incidence(F: np.ndarray, tris: np.ndarray, verts: np.ndarray):
-    """CSR of each of ``verts``' triangles among ``tris`` (positions into
-    ``tris``), for :func:`cone_volume_gradient`."""
+    """CSR of each of ``verts``' (sorted) triangles among ``tris`` (positions
+    into ``tris``, ascending), for :func:`cone_volume_gradient`."""
     if not len(verts) or not len(tris):
         return np.zeros(len(verts) + 1, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    corners = F[tris]                                   # (t, 3)
-    rows = np.repeat(np.arange(len(tris)), 3)
-    vid = corners.ravel()
-    pos = np.searchsorted(verts, vid)
-    ok = (pos < len(verts)) & (verts[np.minimum(pos, len(verts) - 1)] == vid)
-    pos, rows = pos[ok], rows[ok]
-    order = np.argsort(pos, kind="stable")
-    ptr = np.searchsorted(pos[order], np.arange(len(verts) + 1)).astype(np.int64)
-    return ptr, rows[order].astype(np.int64)
+    return _incidence(np.ascontiguousarray(F, dtype=np.int64),
+                      np.ascontiguousarray(tris, dtype=np.int64),
+                      np.ascontiguousarray(verts, dtype=np.int64), int(F.max()) + 1)
+
+
+@nb.njit(cache=True, nogil=True)
+def _incidence(F, tris, verts, n):
+    # a counting sort by vertex: a zone is rebuilt whenever the set of bent
+    # joints changes, so this runs at frame rate, not once
+    pos = np.full(max(n, int(verts.max()) + 1), -1, dtype=np.int64)
+    for k in range(verts.shape[0]):
+        pos[verts[k]] = k
+    ptr = np.zeros(verts.shape[0] + 1, dtype=np.int64)
+    for r in range(tris.shape[0]):
+        for c in range(3):
+            k = pos[F[tris[r], c]]
+            if k >= 0:
+                ptr[k + 1] += 1
+    for k in range(verts.shape[0]):
+        ptr[k + 1] += ptr[k]
+    fill = ptr[:-1].copy()
+    rows = np.empty(ptr[-1], dtype=np.int64)
+    for r in range(tris.shape[0]):
+        for c in range(3):
+            k = pos[F[tris[r], c]]
+            if k >= 0:
+                rows[fill[k]] = r
+                fill[k] += 1
+    return ptr, rows
 
 
 @nb.njit(cache=True, nogil=True)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels.contact import contact_pairs, hold_planes, project_contacts
-from ..kernels.smoothing import adjacency_weights, gather_weights, laplacian_smooth, ring_layout
+from ..kernels.smoothing import gather_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from .base import Frame, Stage
 from ..kernels.skinning import matrices_to_dual_quaternions
@@ -63,7 +63,7 @@ class Contact(Stage):
         self._edge = esum / np.maximum(ecount, 1)           # mean edge at each vertex
         self._edge_max = float(self._edge.max())
         self._ptr, self._adj = r.adj_ptr, r.adj
-        self._w_adj = adjacency_weights(self.V0, self._ptr, self._adj)
+        self._w_adj = character.edge_weights
         n = len(self.V0)
         self._hops = np.full(n, 1 << 30, dtype=np.int64)
         self._queue = np.empty(n, dtype=np.int64)

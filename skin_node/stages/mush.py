@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels.smoothing import (adjacency_weights, gather_weights, laplacian_smooth,
+from ..kernels.smoothing import (gather_weights, laplacian_smooth,
                                  restore_detail, ring_layout, vertex_faces)
 from ..kernels.topology import ring_distance
 from .base import Frame, Stage
@@ -42,7 +42,7 @@ class Mush(Stage):
         self.F = np.ascontiguousarray(character.F, dtype=np.int64)
         n = len(self.V0)
         self._ptr, self._adj = r.adj_ptr, r.adj
-        self._w_adj = adjacency_weights(self.V0, self._ptr, self._adj)
+        self._w_adj = character.edge_weights
         self._vf_ptr, self._vf = vertex_faces(self.F, n)
         # a neighbour of every vertex, the tangent's direction (a closed
         # surface has one for each; an isolated vertex points at itself)

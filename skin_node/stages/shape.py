@@ -6,10 +6,20 @@ import numpy as np
 
 from ..kernels.shape import (cone_volume_gradient, enclosed_volume, limit_bulge,
                              region_incidence, split_fade)
-from ..kernels.smoothing import edge_weights, laplacian_smooth, ring_layout
+from ..kernels.smoothing import gather_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from ..rigging.weights import point_segment_distance, segment_distance
 from .base import Frame, KeyedCache, Stage
+
+
+def _union(verts: list, on: np.ndarray, n: int) -> np.ndarray:
+    """The sorted union of ``verts[j]`` over the joints ``j`` with ``on[j]``
+    (a zone is rebuilt whenever the set of bent joints changes: a mask, not
+    a sort, keeps that within a frame's budget)."""
+    mask = np.zeros(n, dtype=np.bool_)
+    for j in np.flatnonzero(on):
+        mask[verts[j]] = True
+    return np.flatnonzero(mask).astype(np.int64)
 
 
 def _csr(verts: list, values: list):
@@ -69,17 +79,16 @@ class Bulge(Stage):
         self._jcsr = _csr(self.jverts, self.jsplit)
         self._fade = np.zeros(len(V))
         self._V, self._ptr, self._adj = V, r.adj_ptr, r.adj
+        self._w_adj = character.edge_weights
         self._sets = KeyedCache()
         self._width = (None, None)
 
     def _set(self, bent: np.ndarray):
         """The skin the bent joints split, its ring layout and edge weights."""
         def make():
-            js = [j for j in np.flatnonzero(bent) if len(self.jverts[j])]
-            v = (np.unique(np.concatenate([self.jverts[j] for j in js])) if js
-                 else np.zeros(0, np.int64))
+            v = _union(self.jverts, bent, len(self._V))
             lay = ring_layout(v, self._ptr, self._adj)
-            return v, lay, edge_weights(self._V, *lay)
+            return v, lay, gather_weights(v, self._ptr, self._w_adj, lay[2])
         return self._sets.get(bent.tobytes(), make)
 
     def __call__(self, fr: Frame) -> None:
@@ -185,6 +194,7 @@ class Inflate(Stage):
         self._hops = np.full(n, 1 << 30, dtype=np.int64)
         self._queue = np.empty(n, dtype=np.int64)
         self._ptr, self._adj = r.adj_ptr, r.adj
+        self._w_adj = character.edge_weights
         self.V0 = V
 
     def __call__(self, fr: Frame) -> None:
@@ -264,12 +274,14 @@ class Inflate(Stage):
     def _zone(self, bent: np.ndarray):
         """The skin the bent joints split, its triangles and their CSR."""
         def make():
-            js = [j for j in np.flatnonzero(bent) if len(self.jverts[j])]
-            v = (np.unique(np.concatenate([self.jverts[j] for j in js])) if js
-                 else np.zeros(0, np.int64))
-            t = np.flatnonzero(np.isin(self.F, v).any(axis=1)).astype(np.int64)
+            n = len(self.V0)
+            v = _union(self.jverts, bent, n)
+            mask = np.zeros(n, dtype=np.bool_)
+            mask[v] = True
+            t = np.flatnonzero(mask[self.F].any(axis=1)).astype(np.int64)
             lay = ring_layout(v, self._ptr, self._adj)
-            return v, t, region_incidence(self.F, t, v), lay, edge_weights(self.V0, *lay)
+            return (v, t, region_incidence(self.F, t, v), lay,
+                    gather_weights(v, self._ptr, self._w_adj, lay[2]))
         return self._zones.get(bent.tobytes(), make)
 
     def _whole(self, fr: Frame, free: np.ndarray) -> None:
