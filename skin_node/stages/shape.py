@@ -4,12 +4,28 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels.shape import (cone_volume_gradient, enclosed_volume, limit_bulge,
-                             region_incidence, split_fade)
+from ..kernels.shape import (bulge_allowance, cone_volume_gradient, enclosed_volume,
+                             envelope_clamp, envelope_room, limit_bulge, region_incidence,
+                             split_fade)
 from ..kernels.smoothing import gather_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
-from ..rigging.weights import point_segment_distance, segment_distance
+from ..rigging.weights import point_segment_distance
 from .base import Frame, KeyedCache, Stage
+
+
+def nearest_two(V: np.ndarray, skel):
+    """Each vertex's two nearest rest bone segments ``seg`` (n, 2), their
+    distances ``r0`` (n, 2) and ``share`` (n,): how far the second one's
+    bulge limit holds (0.5, in full, at a tie; 0 once it is 30% further)."""
+    _, A, B = skel.bone_segments()
+    D = point_segment_distance(V, A, B)
+    two = np.argsort(D, axis=1, kind="stable")[:, :2]
+    if two.shape[1] == 1:
+        two = np.hstack([two, two])
+    r0 = np.ascontiguousarray(np.take_along_axis(D, two, axis=1))
+    gap = (r0[:, 1] - r0[:, 0]) / np.maximum(0.3 * r0[:, 0], 1e-9)
+    x = np.clip(1.0 - gap, 0.0, 1.0)
+    return np.ascontiguousarray(two, dtype=np.int64), r0, 0.5 * x * x * (3.0 - 2.0 * x)
 
 
 def _union(verts: list, on: np.ndarray, n: int) -> np.ndarray:
@@ -37,9 +53,12 @@ class Bulge(Stage):
     of its outer side around the joint at a radius larger than the limb's,
     which shows as a bulge (Kavan et al. 2007 name it). This is the paper's
     bind constraint on the skin, made one-sided and soft
-    (:func:`~skin_node.kernels.shape.limit_bulge`): skin further from its bone
+    (:func:`~skin_node.kernels.shape.bulge_allowance`,
+    :func:`~skin_node.kernels.shape.limit_bulge`): skin further from its bone
     than at rest is drawn back to at most ``bulge_limit`` times its rest
-    distance out, skin nearer than at rest is left as it is. Only skin whose
+    distance out, skin nearer than at rest is left as it is. Skin between two
+    bones (near where its nearest bone changes) is held within the limits of
+    both at once. Only skin whose
     weights a bent joint splits is drawn in (where skinning blends, and so
     bulges), fading in where the smaller side's weight rises from 0.25% to 1.3%
     (fading in over the first tenth leaves the 150-degree elbow's outer skin
@@ -51,18 +70,7 @@ class Bulge(Stage):
     def __init__(self, character, params):
         super().__init__(character, params)
         r, skel, V = character.rig, character.skeleton, character.V
-        seg_joint, A, B = skel.bone_segments()
-        D = point_segment_distance(V, A, B)
-        two = np.argsort(D, axis=1, kind="stable")[:, :2]
-        if two.shape[1] == 1:
-            two = np.hstack([two, two])
-        self.seg = np.ascontiguousarray(two, dtype=np.int64)
-        self.r0 = np.ascontiguousarray(np.take_along_axis(D, two, axis=1))
-        # where the second segment is nearly as near, it shares the pull (half
-        # of it at a tie, none once it is 30% further away)
-        gap = (self.r0[:, 1] - self.r0[:, 0]) / np.maximum(0.3 * self.r0[:, 0], 1e-9)
-        x = np.clip(1.0 - gap, 0.0, 1.0)
-        self.share = 0.5 * x * x * (3.0 - 2.0 * x)
+        self.seg, self.r0, self.share = nearest_two(V, skel)
         # how evenly each vertex's weights split across each joint (4 s (1 - s),
         # s the weight from below the joint)
         below = skel.subtree()
@@ -78,6 +86,7 @@ class Bulge(Stage):
         self.jsplit = [np.minimum(1.0, split[v, j] / 0.05) for j, v in enumerate(self.jverts)]
         self._jcsr = _csr(self.jverts, self.jsplit)
         self._fade = np.zeros(len(V))
+        self._allowed = np.empty((len(V), 2))
         self._V, self._ptr, self._adj = V, r.adj_ptr, r.adj
         self._w_adj = character.edge_weights
         self._sets = KeyedCache()
@@ -105,17 +114,22 @@ class Bulge(Stage):
         split_fade(fade, *self._jcsr, fr.fade)
         X = fr.surface
         X0 = X[ring].copy()
-        n = limit_bulge(X, verts, self.seg, self.r0, self.share, fr.seg_A, fr.seg_B,
-                        self._width[1], fade)
+        allowed = self._allowed
+        bulge_allowance(X, verts, self.seg, self.r0, self.share, fr.seg_A, fr.seg_B,
+                        self._width[1], fade, allowed)
+        n = limit_bulge(X, verts, self.seg, fr.seg_A, fr.seg_B, fade, allowed)
         fr.counts["bulge_vertices"] = n
         passes = int(self.params["bulge_smoothing"])
         if n and passes:
             base = X.copy()
             base[ring] = X0
-            # each vertex is drawn towards its own nearest bone, and where the
-            # nearest bone changes so does the pull: smooth the pull, not the skin
+            # each vertex is drawn towards its own nearest bones, and where
+            # they change so does the pull: smooth the pull, not the skin, then
+            # take back what the smoothing gave away at the peaks (the
+            # projection leaves skin within its limits alone)
             laplacian_smooth(X, base, True, ring, loc, lptr, lnbr, lw, 0.5, passes,
                              np.empty((len(ring), 3)), np.empty((len(loc), 3)))
+            limit_bulge(X, verts, self.seg, fr.seg_A, fr.seg_B, fade, allowed)
 
 
 class Inflate(Stage):
@@ -185,10 +199,7 @@ class Inflate(Stage):
         self.mesh_vol0 = float(enclosed_volume(V, F))
         # each vertex's nearest bone segment and its distance at rest: skin
         # is not swollen past the bulge limit's envelope around it
-        _, A, B = skel.bone_segments()
-        D = point_segment_distance(V, A, B)
-        self.seg = np.argmin(D, axis=1)
-        self.r0 = D[np.arange(len(V)), self.seg]
+        self.seg, self.r0, self.share = nearest_two(V, skel)
         self._zones = KeyedCache()
         n = len(V)
         self._hops = np.full(n, 1 << 30, dtype=np.int64)
@@ -258,16 +269,18 @@ class Inflate(Stage):
 
     def _room(self, X: np.ndarray, v: np.ndarray, fr: Frame) -> np.ndarray:
         """How far out each of ``v`` may still move: to ``bulge_limit`` of its
-        rest distance beyond it, from its nearest bone segment (0 past it)."""
-        s = self.seg[v]
-        r = segment_distance(X[v], fr.seg_A[s], fr.seg_B[s])
-        return np.maximum((1.0 + float(self.params["bulge_limit"])) * self.r0[v] - r, 0.0)
+        rest distance beyond it, from its nearest bone segment and, as the
+        bulge limit holds them, from the second nearest (0 past either)."""
+        room = np.empty(len(v))
+        envelope_room(X, v, self.seg, self.r0, self.share, fr.seg_A, fr.seg_B,
+                      float(self.params["bulge_limit"]), room)
+        return room
 
     def _give(self, room: np.ndarray, v: np.ndarray) -> np.ndarray:
         """How much of an outward layer each of ``v`` takes: all of it with half
         the bulge limit's room left or more, fading to none at the envelope (a
         cap alone would leave a step where capped skin meets free skin)."""
-        x = np.clip(room / np.maximum(0.5 * float(self.params["bulge_limit"]) * self.r0[v],
+        x = np.clip(room / np.maximum(0.5 * float(self.params["bulge_limit"]) * self.r0[v, 0],
                                       1e-12), 0.0, 1.0)
         return x * x * (3.0 - 2.0 * x)
 
@@ -316,6 +329,11 @@ class Inflate(Stage):
             base[ring] = X0
             laplacian_smooth(X, base, True, ring, loc, lptr, lnbr, lw, 0.5, passes,
                              np.empty((len(ring), 3)), np.empty((len(loc), 3)))
+            if target < self.mesh_vol0:
+                # smoothing spreads the layer onto skin the envelope held:
+                # take that back (the layers past it come after, evenly)
+                envelope_clamp(X, v, self.seg, self.r0, self.share, fr.seg_A, fr.seg_B,
+                               float(self.params["bulge_limit"]), X0[loc])
             deficit = target - enclosed_volume(X, self.F)
             if (deficit > 0.0) != (target < self.mesh_vol0):
                 return
