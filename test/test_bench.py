@@ -254,3 +254,22 @@ def test_a_gltf_characters_own_clips_are_scenes(tmp_path, monkeypatch, capsys):
     capsys.readouterr()
     assert cli.main(common + ["--clips", "gltf:run"]) == 2
     assert "no animation named 'run'" in capsys.readouterr().err
+
+
+def test_a_bvh_file_is_a_clip_retargeted_to_the_scene():
+    """``--clips FILE.bvh`` runs mocap retargeted through the character's CMU
+    map: the poses are load_motion's, every ``stride``-th, named ``bvh:STEM``."""
+    from pathlib import Path
+    from skin_node.motion import load_motion
+    data = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+    bvh = data / "bvh" / "cmu_02_01_walk.bvh"
+    if not bvh.exists():
+        pytest.skip("shared BVH data not present")
+    sc = parse_scene("humanoid:2000")
+    ch, _ = load_scene(sc)
+    mo = cli.motion(str(bvh), "humanoid", ch, stride=24)
+    ref = load_motion("humanoid", bvh=str(bvh))
+    assert mo.name == "bvh:cmu_02_01_walk"
+    assert len(ref.frames) > 100 and np.array_equal(mo.frames, ref.frames[::24])
+    assert mo.fps == pytest.approx(ref.fps / 24)
+    assert mo.frames.shape[1] == ch.n_channels

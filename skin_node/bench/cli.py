@@ -6,6 +6,7 @@ Subcommands (``run`` is the default when the first argument is an option)::
                    --clips elbow_bend,wrist_twist --iterations 1,2,5,10,30 --out out/
     skin_bench run --pipelines '{"name": "dqs+pbd", "stages": ["dqs", "pbd"]}' ...
     skin_bench run --scenes CesiumMan.glb --clips gltf:animation0   # a file's own clip
+    skin_bench run --scenes CesiumMan.glb --clips cmu_02_01_walk.bvh --stride 24   # mocap
     skin_bench stability --pipelines lbs,default --long-frames 100000
     skin_bench memory --scene humanoid:24000 --frames 3000
     skin_bench export-memory --frames 1000   # the streaming exporter's peak RSS
@@ -36,7 +37,7 @@ import numba
 import numpy as np
 
 from . import charts
-from ..motion import GLTF_PREFIX, file_animations, file_clip
+from ..motion import GLTF_PREFIX, file_animations, file_clip, load_motion
 from ..pipeline import STAGE_NAMES
 from .export_memory import export_memory_line, run_export_memory
 from .measure import (JITTER_FRAMES, Motion, Progress, expand_methods, expand_scenes,
@@ -125,7 +126,14 @@ def motion(name: str, character_spec: str, ch, steps: int = 37, stride: int = 1,
            max_frames: int | None = None) -> Motion | None:
     """:func:`~skin_node.bench.measure.make_motion`, or a glTF character's own
     animation (``NAME`` or ``gltf:NAME``, sampled at 120 Hz like the built-in
-    clips, named ``gltf:NAME`` in the results)."""
+    clips, named ``gltf:NAME`` in the results), or a BVH file (``*.bvh``)
+    retargeted through the character's ``config/cmu_to_<character>.yaml``
+    (named ``bvh:STEM``)."""
+    if name.lower().endswith(".bvh"):
+        clip = load_motion(character_spec, bvh=name, skeleton=ch.skeleton)
+        frames = clip.frames[::max(1, stride)][:max_frames or None]
+        return Motion("bvh:" + clip.name, frames, None, clip.fps / max(1, stride),
+                      clip.frames[:JITTER_FRAMES])
     clip = file_clip(character_spec, name)
     if clip is None:
         return make_motion(name, ch, steps=steps, stride=stride, max_frames=max_frames)
@@ -499,7 +507,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="comma-separated character:surface_vertices[:tets] (or a character file)")
     r.add_argument("--clips", default="", help="clips and pose sweeps (elbow_bend, wrist_twist, "
                    "walk, squat, elbow_sweep, twist_sweep) or a glTF character's animations "
-                   "(NAME or gltf:NAME); default per character, a glTF's own animations")
+                   "(NAME or gltf:NAME), or BVH files retargeted to the character; default per "
+                   "character, a glTF's own animations")
     r.add_argument("--iterations", default="", help="sweep, e.g. 1,2,5,10,30")
     r.add_argument("--stiffness", default="", help="sweep, e.g. 0.2,0.5,0.8")
     r.add_argument("--tets", default="", help="sweep of tet counts, e.g. 6000,12000,24000")
