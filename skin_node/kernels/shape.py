@@ -16,7 +16,7 @@ def _closest_on_segment(px, py, pz, A, B, s):
     return A[s, 0] + t * dx, A[s, 1] + t * dy, A[s, 2] + t * dz
 
 
-#: Alternating projections onto the two nearest segments' limits: two rounds
+#: Rounds of alternating projections onto the nearest segments' limits: two
 #: leave the deepest squat's worst vertex within 0.1 mm of where four do.
 ROUNDS = 2
 #: "No limit" in :func:`bulge_allowance`'s output.
@@ -24,31 +24,34 @@ NO_LIMIT = 1e30
 
 
 @nb.njit(cache=True, nogil=True)
-def bulge_allowance(X, verts, seg, r0, share, A, B, width, fade, allowed):
-    """How far from each of its two nearest bone segments every vertex of
+def bulge_allowance(X, verts, seg, r0, hold, A, B, width, fade, allowed):
+    """How far from each of its nearest bone segments every vertex of
     ``verts`` may stand, from where skinning put it (``X``).
 
     The paper's bind constraint ``C = |p - p'| - d`` (p' the closest point of
     the vertex's bone segment, posed ``A``-``B``; ``d`` its rest distance
     ``r0``), made one-sided and soft: skin further out than at rest by ``e``
-    may stand ``width * tanh(e / width)`` out (never more than ``width``,
-    unchanged to first order where ``e`` is small); skin nearer than at rest
-    has no limit. ``seg`` (n, 2) and ``r0`` (n, 2) are each vertex's two
-    nearest rest segments and distances. The second one's limit is loosened
-    by ``1 / (2 share)`` (``share`` (n,): 0.5 at a tie, 0 once it is clearly
-    further), so a vertex comes under it smoothly as the nearest segment
-    changes, and at a tie both hold in full. Writes ``allowed[i]`` (n, 2):
-    the distances, :data:`NO_LIMIT` where none applies (and for vertices
-    whose ``fade`` is 0)."""
+    may stand ``w tanh(e / w)`` out (never more than ``w``, unchanged to first
+    order where ``e`` is small); skin nearer than at rest has no limit.
+    ``seg`` and ``r0`` (n, k) are each vertex's k nearest rest segments and
+    distances, ``hold`` (n, k) how far each one's limit holds: ``w = width /
+    hold``, 1 for the nearest, falling to 0 (no limit) as a segment is
+    further. So a limit comes and goes smoothly wherever the order of the
+    nearest segments changes, and skin about as near several (the buttocks,
+    between the pelvis's bones and a thigh's) is held by each in full.
+    Writes ``allowed[i]`` (n, k): the distances, :data:`NO_LIMIT` where none
+    applies (and for vertices whose ``fade`` is 0)."""
     for k in range(verts.shape[0]):
         i = verts[k]
-        allowed[i, 0] = allowed[i, 1] = NO_LIMIT
+        for s in range(seg.shape[1]):
+            allowed[i, s] = NO_LIMIT
         if fade[i] <= 0.0:
             continue
         px, py, pz = X[i, 0], X[i, 1], X[i, 2]
-        lam = 2.0 * share[i]
-        for s in range(2 if lam > 0.0 else 1):
-            w = width[i] if s == 0 else width[i] / lam
+        for s in range(seg.shape[1]):
+            if hold[i, s] <= 0.0:
+                continue
+            w = width[i] / hold[i, s]
             cx, cy, cz = _closest_on_segment(px, py, pz, A, B, seg[i, s])
             e = math.sqrt((px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2) - r0[i, s]
             if e > 0.0:
@@ -58,23 +61,23 @@ def bulge_allowance(X, verts, seg, r0, share, A, B, width, fade, allowed):
 @nb.njit(cache=True, nogil=True)
 def limit_bulge(X, verts, seg, A, B, fade, allowed):
     """Bring every vertex of ``verts`` within its :func:`bulge_allowance` of
-    both its segments: :data:`ROUNDS` alternating projections onto the two
-    limits (towards each segment's closest point, the skin's radial
-    direction), the move scaled by ``fade`` (n,). Both limits hold at once:
-    a blend of the two pulls leaves skin between two bones (the buttocks,
-    between pelvis and thigh) standing out by half of each. Projection is
-    idempotent, so a second call after smoothing takes back only what the
-    smoothing gave away. Returns how many vertices moved."""
+    each of its segments: :data:`ROUNDS` rounds of alternating projections
+    onto the limits (towards each segment's closest point, the skin's radial
+    direction), the move scaled by ``fade`` (n,). The limits hold at once,
+    where a blend of the pulls left skin between two bones standing out by
+    half of each. Projection is idempotent, so a second call after smoothing
+    takes back only what the smoothing gave away. Returns how many vertices
+    moved."""
     n = 0
     for k in range(verts.shape[0]):
         i = verts[k]
         f = fade[i]
-        if f <= 0.0 or (allowed[i, 0] >= NO_LIMIT and allowed[i, 1] >= NO_LIMIT):
+        if f <= 0.0:
             continue
         px, py, pz = X[i, 0], X[i, 1], X[i, 2]
         qx, qy, qz = px, py, pz
         for _ in range(ROUNDS):
-            for s in range(2):
+            for s in range(seg.shape[1]):
                 if allowed[i, s] >= NO_LIMIT:
                     continue
                 cx, cy, cz = _closest_on_segment(qx, qy, qz, A, B, seg[i, s])
@@ -93,26 +96,23 @@ def limit_bulge(X, verts, seg, A, B, fade, allowed):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _envelope(i, s, r0, share, width):
+def _envelope(i, s, r0, hold, width):
     """Vertex ``i``'s envelope around its ``s``-th nearest segment: its rest
-    distance plus ``width`` (the second's loosened as in :func:`bulge_allowance`)."""
-    if s == 0:
-        return r0[i, 0] + width
-    lam = 2.0 * share[i]
-    return r0[i, 1] + width / lam if lam > 0.0 else NO_LIMIT
+    distance plus ``width``, loosened as in :func:`bulge_allowance`."""
+    return r0[i, s] + width / hold[i, s] if hold[i, s] > 0.0 else NO_LIMIT
 
 
 @nb.njit(cache=True, nogil=True)
-def envelope_room(X, verts, seg, r0, share, A, B, limit, room):
+def envelope_room(X, verts, seg, r0, hold, A, B, limit, room):
     """``room[k]``: how far vertex ``verts[k]`` may still move out before it
     leaves the bulge limit's envelope (``limit`` times its rest distance past
-    it) around either of its two nearest segments; 0 past it."""
+    it) around any of its nearest segments; 0 past it."""
     for k in range(verts.shape[0]):
         i = verts[k]
         w = limit * r0[i, 0]
         out = NO_LIMIT
-        for s in range(2):
-            e = _envelope(i, s, r0, share, w)
+        for s in range(seg.shape[1]):
+            e = _envelope(i, s, r0, hold, w)
             if e >= NO_LIMIT:
                 continue
             cx, cy, cz = _closest_on_segment(X[i, 0], X[i, 1], X[i, 2], A, B, seg[i, s])
@@ -122,7 +122,7 @@ def envelope_room(X, verts, seg, r0, share, A, B, limit, room):
 
 
 @nb.njit(cache=True, nogil=True)
-def envelope_clamp(X, verts, seg, r0, share, A, B, limit, before):
+def envelope_clamp(X, verts, seg, r0, hold, A, B, limit, before):
     """Skin of ``verts`` past the envelope of :func:`envelope_room` drawn back
     onto it, towards each segment in turn, by at most how far it moved since
     ``before`` (len(verts), 3): what was past it already stays."""
@@ -131,8 +131,8 @@ def envelope_clamp(X, verts, seg, r0, share, A, B, limit, before):
         w = limit * r0[i, 0]
         budget = math.sqrt((X[i, 0] - before[k, 0]) ** 2 + (X[i, 1] - before[k, 1]) ** 2
                            + (X[i, 2] - before[k, 2]) ** 2)
-        for s in range(2):
-            e = _envelope(i, s, r0, share, w)
+        for s in range(seg.shape[1]):
+            e = _envelope(i, s, r0, hold, w)
             if e >= NO_LIMIT or budget <= 0.0:
                 continue
             cx, cy, cz = _closest_on_segment(X[i, 0], X[i, 1], X[i, 2], A, B, seg[i, s])

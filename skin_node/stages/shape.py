@@ -13,19 +13,26 @@ from ..rigging.weights import point_segment_distance
 from .base import Frame, KeyedCache, Stage
 
 
-def nearest_two(V: np.ndarray, skel):
-    """Each vertex's two nearest rest bone segments ``seg`` (n, 2), their
-    distances ``r0`` (n, 2) and ``share`` (n,): how far the second one's
-    bulge limit holds (0.5, in full, at a tie; 0 once it is 30% further)."""
+#: Bone segments whose bulge limit a vertex is under: skin can be about as
+#: near three (the buttocks: two of the pelvis's and a thigh's), and a limit
+#: must fade out before its segment leaves the set.
+NEAREST = 4
+
+
+def nearest_segments(V: np.ndarray, skel, k: int = NEAREST):
+    """Each vertex's ``k`` nearest rest bone segments ``seg`` (n, k), their
+    distances ``r0`` (n, k) and ``hold`` (n, k): how far each one's bulge
+    limit holds (1 for the nearest, falling smoothly to 0 once a segment is
+    30% further than it)."""
     _, A, B = skel.bone_segments()
     D = point_segment_distance(V, A, B)
-    two = np.argsort(D, axis=1, kind="stable")[:, :2]
-    if two.shape[1] == 1:
-        two = np.hstack([two, two])
-    r0 = np.ascontiguousarray(np.take_along_axis(D, two, axis=1))
-    gap = (r0[:, 1] - r0[:, 0]) / np.maximum(0.3 * r0[:, 0], 1e-9)
+    k = min(k, D.shape[1])
+    seg = np.argsort(D, axis=1, kind="stable")[:, :k]
+    r0 = np.ascontiguousarray(np.take_along_axis(D, seg, axis=1))
+    gap = (r0 - r0[:, :1]) / np.maximum(0.3 * r0[:, :1], 1e-9)
     x = np.clip(1.0 - gap, 0.0, 1.0)
-    return np.ascontiguousarray(two, dtype=np.int64), r0, 0.5 * x * x * (3.0 - 2.0 * x)
+    hold = np.ascontiguousarray(x * x * (3.0 - 2.0 * x))
+    return np.ascontiguousarray(seg, dtype=np.int64), r0, hold
 
 
 def _union(verts: list, on: np.ndarray, n: int) -> np.ndarray:
@@ -56,9 +63,9 @@ class Bulge(Stage):
     (:func:`~skin_node.kernels.shape.bulge_allowance`,
     :func:`~skin_node.kernels.shape.limit_bulge`): skin further from its bone
     than at rest is drawn back to at most ``bulge_limit`` times its rest
-    distance out, skin nearer than at rest is left as it is. Skin between two
-    bones (near where its nearest bone changes) is held within the limits of
-    both at once. Only skin whose
+    distance out, skin nearer than at rest is left as it is. Skin about as
+    near several bones (where its nearest bone changes) is held within the
+    limits of each at once (:func:`nearest_segments`). Only skin whose
     weights a bent joint splits is drawn in (where skinning blends, and so
     bulges), fading in where the smaller side's weight rises from 0.25% to 1.3%
     (fading in over the first tenth leaves the 150-degree elbow's outer skin
@@ -70,7 +77,7 @@ class Bulge(Stage):
     def __init__(self, character, params):
         super().__init__(character, params)
         r, skel, V = character.rig, character.skeleton, character.V
-        self.seg, self.r0, self.share = nearest_two(V, skel)
+        self.seg, self.r0, self.hold = nearest_segments(V, skel)
         # how evenly each vertex's weights split across each joint (4 s (1 - s),
         # s the weight from below the joint)
         below = skel.subtree()
@@ -86,7 +93,7 @@ class Bulge(Stage):
         self.jsplit = [np.minimum(1.0, split[v, j] / 0.05) for j, v in enumerate(self.jverts)]
         self._jcsr = _csr(self.jverts, self.jsplit)
         self._fade = np.zeros(len(V))
-        self._allowed = np.empty((len(V), 2))
+        self._allowed = np.empty(self.seg.shape)
         self._V, self._ptr, self._adj = V, r.adj_ptr, r.adj
         self._w_adj = character.edge_weights
         self._sets = KeyedCache()
@@ -115,7 +122,7 @@ class Bulge(Stage):
         X = fr.surface
         X0 = X[ring].copy()
         allowed = self._allowed
-        bulge_allowance(X, verts, self.seg, self.r0, self.share, fr.seg_A, fr.seg_B,
+        bulge_allowance(X, verts, self.seg, self.r0, self.hold, fr.seg_A, fr.seg_B,
                         self._width[1], fade, allowed)
         n = limit_bulge(X, verts, self.seg, fr.seg_A, fr.seg_B, fade, allowed)
         fr.counts["bulge_vertices"] = n
@@ -199,7 +206,7 @@ class Inflate(Stage):
         self.mesh_vol0 = float(enclosed_volume(V, F))
         # each vertex's nearest bone segment and its distance at rest: skin
         # is not swollen past the bulge limit's envelope around it
-        self.seg, self.r0, self.share = nearest_two(V, skel)
+        self.seg, self.r0, self.hold = nearest_segments(V, skel)
         self._zones = KeyedCache()
         n = len(V)
         self._hops = np.full(n, 1 << 30, dtype=np.int64)
@@ -270,9 +277,9 @@ class Inflate(Stage):
     def _room(self, X: np.ndarray, v: np.ndarray, fr: Frame) -> np.ndarray:
         """How far out each of ``v`` may still move: to ``bulge_limit`` of its
         rest distance beyond it, from its nearest bone segment and, as the
-        bulge limit holds them, from the second nearest (0 past either)."""
+        bulge limit holds them, from the next nearest (0 past any)."""
         room = np.empty(len(v))
-        envelope_room(X, v, self.seg, self.r0, self.share, fr.seg_A, fr.seg_B,
+        envelope_room(X, v, self.seg, self.r0, self.hold, fr.seg_A, fr.seg_B,
                       float(self.params["bulge_limit"]), room)
         return room
 
@@ -332,7 +339,7 @@ class Inflate(Stage):
             if target < self.mesh_vol0:
                 # smoothing spreads the layer onto skin the envelope held:
                 # take that back (the layers past it come after, evenly)
-                envelope_clamp(X, v, self.seg, self.r0, self.share, fr.seg_A, fr.seg_B,
+                envelope_clamp(X, v, self.seg, self.r0, self.hold, fr.seg_A, fr.seg_B,
                                float(self.params["bulge_limit"]), X0[loc])
             deficit = target - enclosed_volume(X, self.F)
             if (deficit > 0.0) != (target < self.mesh_vol0):
