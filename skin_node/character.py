@@ -19,6 +19,7 @@ from .parts import Part, Passengers
 from .rigging.build import Rig, RigOptions, Steps, cache_dir, cached_rig
 from .rigging.embed import fit_template
 from .rigging.regions import JointRegions
+from .rigging.weights import nearest_segments
 from .skeleton import Skeleton
 
 #: Default tet counts: the paper's human has 51,110 tets; the arm prototype 12k.
@@ -96,6 +97,13 @@ class Character:
         (``rig.adj_ptr``/``rig.adj``), built once and read by every stage
         that smooths (:func:`~skin_node.kernels.smoothing.gather_weights`)."""
         return adjacency_weights(self.V, self.rig.adj_ptr, self.rig.adj)
+
+    @cached_property
+    def nearest_segments(self) -> tuple:
+        """``(seg, r0, hold)`` of the body's rest surface
+        (:func:`~skin_node.rigging.weights.nearest_segments`), built once and
+        read by the bulge and inflate stages."""
+        return nearest_segments(self.V, self.skeleton)
 
     def part_lines(self) -> list:
         """One line per part (:meth:`Part.describe`), then the notes."""

@@ -106,3 +106,25 @@ def inverse_distance_weights(D: np.ndarray, region: np.ndarray, skel: Skeleton,
     Wval = inv / inv.sum(1, keepdims=True)
     Widx = np.where(valid, order, 0)
     return Widx.astype(np.int64), Wval
+
+
+#: Bone segments whose bulge limit a vertex is under: skin can be about as
+#: near three (the buttocks: two of the pelvis's and a thigh's), and a limit
+#: must fade out before its segment leaves the set.
+NEAREST = 4
+
+
+def nearest_segments(V: np.ndarray, skel, k: int = NEAREST):
+    """Each vertex's ``k`` nearest rest bone segments ``seg`` (n, k), their
+    distances ``r0`` (n, k) and ``hold`` (n, k): how far each one's bulge
+    limit holds (1 for the nearest, falling smoothly to 0 once a segment is
+    30% further than it)."""
+    _, A, B = skel.bone_segments()
+    D = point_segment_distance(V, A, B)
+    k = min(k, D.shape[1])
+    seg = np.argsort(D, axis=1, kind="stable")[:, :k]
+    r0 = np.ascontiguousarray(np.take_along_axis(D, seg, axis=1))
+    gap = (r0 - r0[:, :1]) / np.maximum(0.3 * r0[:, :1], 1e-9)
+    x = np.clip(1.0 - gap, 0.0, 1.0)
+    hold = np.ascontiguousarray(x * x * (3.0 - 2.0 * x))
+    return np.ascontiguousarray(seg, dtype=np.int64), r0, hold

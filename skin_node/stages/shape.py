@@ -9,30 +9,7 @@ from ..kernels.shape import (bulge_allowance, cone_volume_gradient, enclosed_vol
                              split_fade)
 from ..kernels.smoothing import gather_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
-from ..rigging.weights import point_segment_distance
 from .base import Frame, KeyedCache, Stage
-
-
-#: Bone segments whose bulge limit a vertex is under: skin can be about as
-#: near three (the buttocks: two of the pelvis's and a thigh's), and a limit
-#: must fade out before its segment leaves the set.
-NEAREST = 4
-
-
-def nearest_segments(V: np.ndarray, skel, k: int = NEAREST):
-    """Each vertex's ``k`` nearest rest bone segments ``seg`` (n, k), their
-    distances ``r0`` (n, k) and ``hold`` (n, k): how far each one's bulge
-    limit holds (1 for the nearest, falling smoothly to 0 once a segment is
-    30% further than it)."""
-    _, A, B = skel.bone_segments()
-    D = point_segment_distance(V, A, B)
-    k = min(k, D.shape[1])
-    seg = np.argsort(D, axis=1, kind="stable")[:, :k]
-    r0 = np.ascontiguousarray(np.take_along_axis(D, seg, axis=1))
-    gap = (r0 - r0[:, :1]) / np.maximum(0.3 * r0[:, :1], 1e-9)
-    x = np.clip(1.0 - gap, 0.0, 1.0)
-    hold = np.ascontiguousarray(x * x * (3.0 - 2.0 * x))
-    return np.ascontiguousarray(seg, dtype=np.int64), r0, hold
 
 
 def _union(verts: list, on: np.ndarray, n: int) -> np.ndarray:
@@ -65,7 +42,7 @@ class Bulge(Stage):
     than at rest is drawn back to at most ``bulge_limit`` times its rest
     distance out, skin nearer than at rest is left as it is. Skin about as
     near several bones (where its nearest bone changes) is held within the
-    limits of each at once (:func:`nearest_segments`). Only skin whose
+    limits of each at once (:attr:`~skin_node.Character.nearest_segments`). Only skin whose
     weights a bent joint splits is drawn in (where skinning blends, and so
     bulges), fading in where the smaller side's weight rises from 0.25% to 1.3%
     (fading in over the first tenth leaves the 150-degree elbow's outer skin
@@ -77,7 +54,7 @@ class Bulge(Stage):
     def __init__(self, character, params):
         super().__init__(character, params)
         r, skel, V = character.rig, character.skeleton, character.V
-        self.seg, self.r0, self.hold = nearest_segments(V, skel)
+        self.seg, self.r0, self.hold = character.nearest_segments
         # how evenly each vertex's weights split across each joint (4 s (1 - s),
         # s the weight from below the joint)
         below = skel.subtree()
@@ -206,7 +183,7 @@ class Inflate(Stage):
         self.mesh_vol0 = float(enclosed_volume(V, F))
         # each vertex's nearest bone segment and its distance at rest: skin
         # is not swollen past the bulge limit's envelope around it
-        self.seg, self.r0, self.hold = nearest_segments(V, skel)
+        self.seg, self.r0, self.hold = character.nearest_segments
         self._zones = KeyedCache()
         n = len(V)
         self._hops = np.full(n, 1 << 30, dtype=np.int64)
