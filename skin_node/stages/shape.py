@@ -181,8 +181,8 @@ class Inflate(Stage):
             self.jsplit.append(np.minimum(1.0, sp[v] / 0.36))
         self._jcsr = _csr(self.jverts, self.jsplit)
         self.mesh_vol0 = float(enclosed_volume(V, F))
-        # each vertex's nearest bone segment and its distance at rest: skin
-        # is not swollen past the bulge limit's envelope around it
+        # each vertex's nearest bone segments and their distances at rest:
+        # skin is not swollen past the bulge limit's envelope around them
         self.seg, self.r0, self.hold = character.nearest_segments
         self._zones = KeyedCache()
         n = len(V)
