@@ -26,7 +26,8 @@ def _csr(verts: list, values: list):
     """Per-joint vertex lists and values as one CSR: (ptr, verts, values)."""
     ptr = np.zeros(len(verts) + 1, dtype=np.int64)
     ptr[1:] = np.cumsum([len(v) for v in verts])
-    cat = lambda xs, dt: (np.concatenate(xs).astype(dt) if len(xs) else np.zeros(0, dt))  # noqa: E731
+    def cat(xs, dt):
+        return np.concatenate(xs).astype(dt) if len(xs) else np.zeros(0, dt)
     return ptr, cat(verts, np.int64), cat(values, np.float64)
 
 
