@@ -311,6 +311,36 @@ def test_carried_back_a_skinned_vertex_reads_its_rest_field(humanoid):
     assert np.percentile(rigid, 90) > 1e-2
 
 
+def test_contact_chunks_keep_every_vertex_a_box_holds(humanoid):
+    """The contact's first pass tests only chunks of skin whose box meets a
+    candidate part's box: at the deepest squat that is a fraction of the
+    skin, and every vertex that the per-vertex box test would keep is among
+    them (the chunks change the time, never the skin)."""
+    from skin_node import make_clip
+    from skin_node.kernels.contact import boxed_vertices
+    ch = humanoid
+    clip = make_clip("squat", ch.skeleton).frames
+    q = clip[int(np.argmax([ch.skeleton.joint_angles(f).max() for f in clip]))]
+    pipe = Pipeline(ch, ["dqs"])
+    X = pipe.deform(q)
+    st = Pipeline(ch, ["dqs", "contact"]).stages[1]
+    fr = pipe.last_frame
+    cand_ptr, cand, Minv, box = st.pairs(fr)
+    out = np.empty(len(X), dtype=np.int64)
+    kept = set(out[:boxed_vertices(X, st._order, st._pptr, st._cptr, cand_ptr, cand, Minv,
+                                   box, out)].tolist())
+    inside = set()
+    for a in np.flatnonzero(np.diff(cand_ptr)):
+        vs = np.flatnonzero(ch.rig.part == a)
+        for b in cand[cand_ptr[a]:cand_ptr[a + 1]]:
+            x = X[vs] @ Minv[b, :3, :3].T + Minv[b, :3, 3]
+            hit = np.all((x >= box[b, 0]) & (x <= box[b, 1]), axis=1)
+            inside.update(vs[hit].tolist())
+    assert len(inside) > 1000, len(inside)
+    assert inside <= kept, len(inside - kept)
+    assert len(kept) < 0.7 * len(X), (len(kept), len(X))
+
+
 # ------------------------------------------------------------------ kernels
 def test_mesh_tree_queries_agree_with_brute_force():
     m = trimesh.creation.icosphere(3, radius=0.1)

@@ -344,6 +344,9 @@ def project_contacts(X, V0, verts, side, cand_ptr, cand, Q, Minv, pf, box, margi
             if C >= 0.0:
                 break
             hit[i] = b
+            # the next steps follow the part this one left (carried from
+            # where its field was just read: the step is a fraction of a margin)
+            only = b
             # where the two fields run nearly parallel their difference is flat:
             # never step further than twice the violation
             g2 = max(gx * gx + gy * gy + gz * gz, 0.25)
@@ -442,4 +445,53 @@ def contact_pairs(X, order, pptr, M, Minv, has, lo, hi, reach, min_angle, box, c
                 cand[n] = b
                 n += 1
     cand_ptr[J] = n
+    return n
+
+
+@nb.njit(cache=True, nogil=True)
+def boxed_vertices(X, order, pptr, cptr, cand_ptr, cand, Minv, box, out):
+    """The vertices that may lie in another part's box (see
+    :func:`project_contacts`), found chunk by chunk: ``order`` holds each
+    part's vertices (``order[pptr[a]:pptr[a+1]]``) in spatially coherent
+    chunks ``order[cptr[c]:cptr[c+1]]``; a chunk's posed bounding box is
+    carried into each candidate part's rest frame (its eight corners) and
+    only where that meets the candidate's box are its vertices kept. The
+    boxes bound the vertices, so no vertex that a per-vertex test would keep
+    is dropped. Writes them to ``out``; returns how many."""
+    n = 0
+    J = pptr.shape[0] - 1
+    c = 0
+    for a in range(J):
+        c0, c1 = cand_ptr[a], cand_ptr[a + 1]
+        while c < cptr.shape[0] - 1 and cptr[c] < pptr[a + 1]:
+            q0, q1 = cptr[c], cptr[c + 1]
+            c += 1
+            if c0 == c1:
+                continue
+            lx = ly = lz = np.inf
+            hx = hy = hz = -np.inf
+            for q in range(q0, q1):
+                i = order[q]
+                lx, hx = min(lx, X[i, 0]), max(hx, X[i, 0])
+                ly, hy = min(ly, X[i, 1]), max(hy, X[i, 1])
+                lz, hz = min(lz, X[i, 2]), max(hz, X[i, 2])
+            keep = False
+            for e in range(c0, c1):
+                b = cand[e]
+                blx = bly = blz = np.inf
+                bhx = bhy = bhz = -np.inf
+                for k in range(8):
+                    x, y, z = _to_rest(Minv, b, hx if k & 1 else lx, hy if k & 2 else ly,
+                                       hz if k & 4 else lz)
+                    blx, bhx = min(blx, x), max(bhx, x)
+                    bly, bhy = min(bly, y), max(bhy, y)
+                    blz, bhz = min(blz, z), max(bhz, z)
+                if (blx <= box[b, 1, 0] and bhx >= box[b, 0, 0] and bly <= box[b, 1, 1]
+                        and bhy >= box[b, 0, 1] and blz <= box[b, 1, 2] and bhz >= box[b, 0, 2]):
+                    keep = True
+                    break
+            if keep:
+                for q in range(q0, q1):
+                    out[n] = order[q]
+                    n += 1
     return n

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels.contact import contact_pairs, hold_planes, project_contacts
+from ..kernels.contact import boxed_vertices, contact_pairs, hold_planes, project_contacts
 from ..kernels.smoothing import gather_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from .base import Frame, Stage
@@ -18,6 +18,28 @@ FACE = (0.9, 0.5)
 CARRY_ITERATIONS = 3
 #: Newton steps of one projection.
 STEPS = 4
+
+
+#: Vertices in a chunk of :func:`_chunks`.
+CHUNK = 32
+
+
+def _chunks(part: np.ndarray, V: np.ndarray, J: int):
+    """Each part's vertices in chunks of :data:`CHUNK` nearby ones: ``order``
+    (the vertices by part, and within a part along a Morton curve of their
+    rest positions), ``pptr`` (J+1,) each part's span of it and ``cptr`` the
+    chunks' (no chunk spans two parts)."""
+    lo, hi = V.min(axis=0), V.max(axis=0)
+    cell = np.floor((V - lo) / max(float((hi - lo).max()), 1e-12) * 1023.999).astype(np.int64)
+    code = np.zeros(len(V), dtype=np.int64)
+    for bit in range(10):
+        for d in range(3):
+            code |= ((cell[:, d] >> bit) & 1) << (3 * bit + d)
+    order = np.lexsort((code, part)).astype(np.int64)
+    pptr = np.searchsorted(part[order], np.arange(J + 1)).astype(np.int64)
+    cptr = np.unique(np.concatenate([np.arange(pptr[a], pptr[a + 1], CHUNK)
+                                     for a in range(J)] + [pptr[-1:]])).astype(np.int64)
+    return order, pptr, cptr
 
 
 class Contact(Stage):
@@ -48,9 +70,9 @@ class Contact(Stage):
         self.fields = r.fields
         J = character.skeleton.n_joints
         self.has = r.field_dims[:, 0] > 1
-        order = np.argsort(self.part, kind="stable")
-        self._order = order.astype(np.int64)
-        self._pptr = np.searchsorted(self.part[order], np.arange(J + 1)).astype(np.int64)
+        # each part's vertices, in chunks of nearby skin (:func:`_chunks`)
+        self._order, self._pptr, self._cptr = _chunks(self.part, self.V0, J)
+        self._boxed = np.empty(len(self.V0), dtype=np.int64)
         # each part's grid box in its rest frame
         self._lo = r.field_origin
         self._hi = r.field_origin + (np.maximum(r.field_dims, 1) - 1) * r.field_cell[:, None]
@@ -97,6 +119,8 @@ class Contact(Stage):
         parts = np.flatnonzero(np.diff(cand_ptr))
         verts = np.concatenate([self._order[self._pptr[a]:self._pptr[a + 1]] for a in parts])
         X = fr.surface
+        first = self._boxed[:boxed_vertices(X, self._order, self._pptr, self._cptr, cand_ptr,
+                                            cand, Minv, box, self._boxed)]
         X0 = X.copy()
         Q = matrices_to_dual_quaternions(fr.M)
         margin = float(self.params["contact_margin"]) * self._edge
@@ -109,7 +133,7 @@ class Contact(Stage):
         passes = int(self.params["contact_smoothing"])
         plane, hit = self._plane, self._hit
         hit[verts] = -1
-        project_contacts(X, *args, moved, plane, hit, False, self._pre)
+        project_contacts(X, self.V0, first, *args[2:], moved, plane, hit, False, self._pre)
         if not moved.any():
             fr.counts["contact_vertices"] = 0
             return
