@@ -111,7 +111,7 @@ PIPELINE_PARAMS = {
                              "skin (its rest detail comes back; 0 leaves it alone)"),
     "bulge_limit": ParamSpec(float, 0.1, 0.001, 2.0, "the most skin stands out from its bone "
                              "beyond its rest distance, in rest distances"),
-    "bulge_smoothing": ParamSpec(int, 4, 0, 100, "Laplacian passes over the bulge limit's "
+    "bulge_smoothing": ParamSpec(int, 2, 0, 100, "Laplacian passes over the bulge limit's "
                                  "pull"),
     "inflate_rings": ParamSpec(int, 3, 0, 20, "rings around skin in contact over which "
                                "inflation fades in"),
@@ -124,7 +124,7 @@ PIPELINE_PARAMS = {
     "inflate_slack": ParamSpec(float, 0.02, 0.0, 1.0, "the whole mesh may keep this share of "
                                "its volume lost (what the joint regions do not take back); "
                                "1 leaves it alone"),
-    "inflate_smoothing": ParamSpec(int, 8, 0, 100, "Laplacian passes over the whole mesh's "
+    "inflate_smoothing": ParamSpec(int, 4, 0, 100, "Laplacian passes over the whole mesh's "
                                    "inflation"),
     "inflate_max": ParamSpec(float, 0.25, 0.0, 2.0, "the most inflation moves skin, in limb "
                              "radii of the joint"),

@@ -147,6 +147,65 @@ def envelope_clamp(X, verts, seg, r0, hold, A, B, limit, before):
                 budget -= back
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def smoothstep(x):
+    """0 below 0, 1 above 1, ``3x^2 - 2x^3`` between."""
+    x = min(max(x, 0.0), 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+@nb.njit(cache=True, nogil=True)
+def keep_region_volume(X, F, tris, c, inc_ptr, inc, verts, mob, free, seg, r0, hold, A, B,
+                       limit, vol0, cap, g, room, share):
+    """One joint region's volume back to ``vol0`` (the cone from ``c`` over
+    its triangles ``tris``, :func:`cone_volume_gradient`), by even layers
+    along the volume's gradient: up to four within the bulge limit's
+    envelope (:func:`envelope_room` at ``limit``, each vertex's share fading
+    to none as its room runs out), then, if the region is still short (skin
+    in contact all round, a coarse mesh), up to four past it. ``mob``
+    (len(verts),) is each vertex's share of a layer; where the region is
+    short it is also scaled by ``free`` (n,): skin in contact may sink into
+    its own flesh, not swell into the other's. Layers move skin both ways
+    (contact pushes skin out as well as in), by at most ``cap``. ``g``
+    (len(verts), 3), ``room`` and ``share`` (len(verts),) are scratch.
+    Returns the region's volume at the end."""
+    vol = cone_volume_gradient(X, F, tris, c, inc_ptr, inc, verts, g)
+    for it in range(8):
+        deficit = vol0 - vol
+        if abs(deficit) <= 2e-3 * abs(vol0):
+            break
+        out = deficit > 0.0
+        if not out and it >= 4:
+            break
+        within = out and it < 4
+        if within:
+            envelope_room(X, verts, seg, r0, hold, A, B, limit, room)
+        den = 0.0
+        for k in range(verts.shape[0]):
+            i = verts[k]
+            m = mob[k]
+            if out:
+                m *= free[i]
+                if within:
+                    m *= smoothstep(room[k] / max(0.5 * limit * r0[i, 0], 1e-12))
+            share[k] = m
+            den += m * math.sqrt(g[k, 0] ** 2 + g[k, 1] ** 2 + g[k, 2] ** 2)
+        if den <= 0.0:
+            continue
+        s = deficit / den
+        for k in range(verts.shape[0]):
+            i = verts[k]
+            step = min(max(s * share[k], -cap), cap)
+            if within:
+                step = min(step, room[k])
+            a = max(math.sqrt(g[k, 0] ** 2 + g[k, 1] ** 2 + g[k, 2] ** 2), 1e-30)
+            X[i, 0] += step * g[k, 0] / a
+            X[i, 1] += step * g[k, 1] / a
+            X[i, 2] += step * g[k, 2] / a
+        vol = cone_volume_gradient(X, F, tris, c, inc_ptr, inc, verts, g)
+    return vol
+
+
 @nb.njit(cache=True, nogil=True)
 def cone_volume_gradient(X, F, tris, c, inc_ptr, inc, verts, g):
     """Volume of the cone from ``c`` over triangles ``tris`` of ``X`` and its

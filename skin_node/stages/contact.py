@@ -144,7 +144,8 @@ class Contact(Stage):
         ring, loc, lptr, lnbr = ring_layout(zone, self._ptr, self._adj)
         lw = gather_weights(zone, self._ptr, self._w_adj, lptr)
         L, buf = np.empty((len(ring), 3)), np.empty((len(zone), 3))
-        near = np.intersect1d(zone, verts, assume_unique=True)
+        # the zone's skin of parts that have candidates (``verts``, in zone order)
+        near = zone[(np.diff(cand_ptr) > 0)[self.part[zone]]]
         exact = max(1, int(self.params["contact_exact_every"]))
         for r in range(rounds):
             # projected Jacobi: smoothing pulls contact skin back in, the

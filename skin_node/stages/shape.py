@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels.shape import (bulge_allowance, cone_volume_gradient, enclosed_volume,
-                             envelope_clamp, envelope_room, limit_bulge, region_incidence,
-                             split_fade)
+                             envelope_clamp, envelope_room, keep_region_volume, limit_bulge,
+                             region_incidence, split_fade)
 from ..kernels.smoothing import gather_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from .base import Frame, KeyedCache, Stage
@@ -211,44 +211,14 @@ class Inflate(Stage):
             self._whole(fr, free)
         worst = 1.0
         cap = float(self.params["inflate_max"])
+        limit = float(self.params["bulge_limit"])
         for j in js:
-            v, t = self.verts[j], self.tris[j]
-            g = np.empty((len(v), 3))
-            c = fr.G[j, :3, 3]
-            # four steps within the bulge limit's envelope, then (if the region
-            # is still short: skin in contact all round, a coarse mesh) four
-            # past it: a joint keeps its volume before it keeps its outline
-            stale = True
-            for it in range(8):
-                vol = cone_volume_gradient(X, self.F, t, c, *self.inc[j], v, g)
-                stale = False
-                deficit = self.vol0[j] - vol
-                if abs(deficit) <= 2e-3 * abs(self.vol0[j]):
-                    break
-                # skin in contact may sink into its own flesh, not swell into
-                # the other's: it takes part in giving volume back, not in taking it
-                m = self.mob[j] * fr.fade[j]
-                room = None
-                if deficit > 0.0:
-                    m = m * free[v]
-                    if it < 4:
-                        room = self._room(X, v, fr)
-                        m = m * self._give(room, v)
-                elif it >= 4:
-                    break
-                a = np.linalg.norm(g, axis=1)
-                den = float((m * a).sum())
-                if den <= 0.0:
-                    continue
-                # contact pushes skin out as well as in: both ways, back to rest
-                lim = cap * self.radius[j]
-                step = np.clip((deficit / den) * m, -lim, lim)
-                if room is not None:
-                    step = np.minimum(step, room)
-                X[v] += step[:, None] * (g / np.maximum(a, 1e-30)[:, None])
-                stale = True
-            if stale:
-                vol = cone_volume_gradient(X, self.F, t, c, *self.inc[j], v, g)
+            v = self.verts[j]
+            g, room, share = np.empty((len(v), 3)), np.empty(len(v)), np.empty(len(v))
+            vol = keep_region_volume(X, self.F, self.tris[j], fr.G[j, :3, 3], *self.inc[j], v,
+                                     self.mob[j] * fr.fade[j], free, self.seg, self.r0,
+                                     self.hold, fr.seg_A, fr.seg_B, limit, self.vol0[j],
+                                     cap * self.radius[j], g, room, share)
             worst = min(worst, vol / self.vol0[j])
         fr.counts["region_volume_min"] = worst
 
