@@ -98,7 +98,8 @@ class Bulge(Stage):
         fade[verts] = 0.0
         split_fade(fade, *self._jcsr, fr.fade)
         X = fr.surface
-        X0 = X[ring].copy()
+        # the skin before the pull: a whole copy costs less than gathering the ring
+        base = X.copy()
         allowed = self._allowed
         bulge_allowance(X, verts, self.seg, self.r0, self.hold, fr.seg_A, fr.seg_B,
                         self._width[1], fade, allowed)
@@ -106,8 +107,6 @@ class Bulge(Stage):
         fr.counts["bulge_vertices"] = n
         passes = int(self.params["bulge_smoothing"])
         if n and passes:
-            base = X.copy()
-            base[ring] = X0
             # each vertex is drawn towards its own nearest bones, and where
             # they change so does the pull: smooth the pull, not the skin, then
             # take back what the smoothing gave away at the peaks (the
@@ -267,7 +266,7 @@ class Inflate(Stage):
         v, t, inc, (ring, loc, lptr, lnbr), lw = self._zone(fr.bent)
         if not len(v):
             return
-        X0 = X[ring].copy()
+        base = X.copy()
         m = np.zeros(len(X))
         split_fade(m, *self._jcsr, fr.fade * fr.bent)
         m = m[v] * free[v]
@@ -280,15 +279,13 @@ class Inflate(Stage):
         deficit = self._layer(fr, v, t, inc, m, target, deficit, lim, 3, True)
         passes = int(self.params["inflate_smoothing"])
         if passes:
-            base = X.copy()
-            base[ring] = X0
             laplacian_smooth(X, base, True, ring, loc, lptr, lnbr, lw, 0.5, passes,
                              np.empty((len(ring), 3)), np.empty((len(loc), 3)))
             if target < self.mesh_vol0:
                 # smoothing spreads the layer onto skin the envelope held:
                 # take that back (the layers past it come after, evenly)
                 envelope_clamp(X, v, self.seg, self.r0, self.hold, fr.seg_A, fr.seg_B,
-                               float(self.params["bulge_limit"]), X0[loc])
+                               float(self.params["bulge_limit"]), base[v])
             deficit = target - enclosed_volume(X, self.F)
             if (deficit > 0.0) != (target < self.mesh_vol0):
                 return
