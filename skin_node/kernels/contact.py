@@ -28,7 +28,7 @@ FAR = 1e9
 REACH = 3
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, inline="always")
 def field_at(values, ptr, origin, cell, dims, j, x, y, z, clamp):
     """Trilinear value and gradient of part ``j``'s field at rest point
     ``(x, y, z)``; :data:`FAR` and a zero gradient outside its grid (inside
@@ -69,7 +69,7 @@ def field_at(values, ptr, origin, cell, dims, j, x, y, z, clamp):
     return val, gx, gy, gz
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, inline="always")
 def _blend(Q, sets, s0, s1, wvalues, wptr, wdims, origin, cell, j, x, y, z, exclude):
     """The dual quaternion (real w, x, y, z; translation) that skinning gives
     rest point ``(x, y, z)`` of part ``j``'s flesh: its bone set's weights
@@ -135,7 +135,7 @@ def _rotate(w0, x0, y0, z0, vx, vy, vz):
             vz + w0 * tz + (x0 * ty - y0 * tx))
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, inline="always")
 def skinned_field(pf, Q, j, px, py, pz, x, y, z, iterations, clamp, exclude):
     """Part ``j``'s field at posed point ``p`` and its posed gradient.
 
@@ -207,7 +207,7 @@ def _in_grid(origin, cell, dims, j, x, y, z, pad):
             and origin[j, 2] - pad <= z <= origin[j, 2] + (dims[j, 2] - 1) * h + pad)
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, inline="always")
 def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, face0, face1,
                   iterations, only, pre):
     """The most violated contact constraint of vertex ``i`` of part ``a``
@@ -230,48 +230,42 @@ def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, face0, fa
     px, py, pz = X[i, 0], X[i, 1], X[i, 2]
     rx, ry, rz = V0[i, 0], V0[i, 1], V0[i, 2]
     worst, wx, wy, wz, wb = 0.0, 0.0, 0.0, 0.0, -1
-    if only >= 0:
-        b = only
-        sb, ux, uy, uz, qbx, qby, qbz = skinned_field(pf, Q, b, px, py, pz, pre[i, 0],
-                                                      pre[i, 1], pre[i, 2], 1, False, a)
-        if sb >= 0.0:
-            return worst, wx, wy, wz, wb
-        sa, vx, vy, vz, qax, qay, qaz = skinned_field(pf, Q, a, px, py, pz, pre[i, 3],
-                                                      pre[i, 4], pre[i, 5], 1, True, b)
-        C = _gated(sb, sa, ux, uy, uz, vx, vy, vz, margin[i], pf, a, b, rx, ry, rz, face0,
-                   face1)
-        if C < 0.0:
-            pre[i, 0], pre[i, 1], pre[i, 2] = qbx, qby, qbz
-            pre[i, 3], pre[i, 4], pre[i, 5] = qax, qay, qaz
-            return C, ux - vx, uy - vy, uz - vz, b
-        return worst, wx, wy, wz, wb
-    for c in range(c0, c1):
-        b = cand[c]
-        xb, yb, zb = _to_rest(Minv, b, X[i, 0], X[i, 1], X[i, 2])
-        if not (box[b, 0, 0] <= xb <= box[b, 1, 0] and box[b, 0, 1] <= yb <= box[b, 1, 1]
-                and box[b, 0, 2] <= zb <= box[b, 1, 2]):
-            continue
-        if not _in_grid(origin, cell, dims, b, xb, yb, zb, 0.0):
-            continue
-        # skinning carries b's flesh by a blend of its bone set (without a):
-        # the point's preimage lies no further from where b's bone alone puts
-        # it than its other bones' weight there times how far they put the
-        # point apart (:func:`_reach`), so the field (1-Lipschitz) cannot be
-        # negative there if it is larger than that here (the weights are the
-        # most within REACH nodes, which covers the preimage while that
-        # distance is within it)
-        s_rigid, _, _, _ = field_at(values, ptr, origin, cell, dims, b, xb, yb, zb, False)
-        if s_rigid >= FAR:
-            continue
-        shift = 1.25 * _reach(pf, Minv, b, a, px, py, pz, xb, yb, zb)
-        if s_rigid > shift and shift <= REACH * 2.0 * cell[b]:
-            continue
-        sb, ux, uy, uz, qbx, qby, qbz = skinned_field(pf, Q, b, px, py, pz, xb, yb, zb,
-                                                      iterations, False, a)
+    # one loop for both cases, so the fields are read in one place (each read
+    # is inlined: a call would pass, and count references to, a dozen arrays)
+    lo, hi = (0, 1) if only >= 0 else (c0, c1)
+    for c in range(lo, hi):
+        if only >= 0:
+            b, n = only, 1
+            xb, yb, zb = pre[i, 0], pre[i, 1], pre[i, 2]
+            xa, ya, za = pre[i, 3], pre[i, 4], pre[i, 5]
+        else:
+            b, n = cand[c], iterations
+            xb, yb, zb = _to_rest(Minv, b, px, py, pz)
+            if not (box[b, 0, 0] <= xb <= box[b, 1, 0] and box[b, 0, 1] <= yb <= box[b, 1, 1]
+                    and box[b, 0, 2] <= zb <= box[b, 1, 2]):
+                continue
+            if not _in_grid(origin, cell, dims, b, xb, yb, zb, 0.0):
+                continue
+            # skinning carries b's flesh by a blend of its bone set (without a):
+            # the point's preimage lies no further from where b's bone alone puts
+            # it than its other bones' weight there times how far they put the
+            # point apart (:func:`_reach`), so the field (1-Lipschitz) cannot be
+            # negative there if it is larger than that here (the weights are the
+            # most within REACH nodes, which covers the preimage while that
+            # distance is within it)
+            s_rigid, _, _, _ = field_at(values, ptr, origin, cell, dims, b, xb, yb, zb, False)
+            if s_rigid >= FAR:
+                continue
+            shift = 1.25 * _reach(pf, Minv, b, a, px, py, pz, xb, yb, zb)
+            if s_rigid > shift and shift <= REACH * 2.0 * cell[b]:
+                continue
+            xa, ya, za = rx, ry, rz
+        sb, ux, uy, uz, qbx, qby, qbz = skinned_field(pf, Q, b, px, py, pz, xb, yb, zb, n,
+                                                      False, a)
         if sb >= 0.0:
             continue
-        sa, vx, vy, vz, qax, qay, qaz = skinned_field(pf, Q, a, px, py, pz, rx, ry, rz,
-                                                      iterations, True, b)
+        sa, vx, vy, vz, qax, qay, qaz = skinned_field(pf, Q, a, px, py, pz, xa, ya, za, n,
+                                                      True, b)
         C = _gated(sb, sa, ux, uy, uz, vx, vy, vz, margin[i], pf, a, b, rx, ry, rz, face0,
                    face1)
         if C < worst:
