@@ -126,14 +126,15 @@ class Contact(Stage):
         margin = float(self.params["contact_margin"]) * self._edge
         moved = self._moved
         moved[:] = False
-        args = (self.V0, verts, self.part, cand_ptr, cand, Q, Minv, self.fields, box, margin,
+        # what both projections read besides the skin and the vertices to test
+        args = (self.part, cand_ptr, cand, Q, Minv, self.fields, box, margin,
                 FACE[0], FACE[1], CARRY_ITERATIONS, STEPS)
         rounds = int(self.params["contact_rounds"])
         rings = int(self.params["contact_rings"])
         passes = int(self.params["contact_smoothing"])
         plane, hit = self._plane, self._hit
         hit[verts] = -1
-        project_contacts(X, self.V0, first, *args[2:], moved, plane, hit, False, self._pre)
+        project_contacts(X, self.V0, first, *args, moved, plane, hit, False, self._pre)
         if not moved.any():
             fr.counts["contact_vertices"] = 0
             return
@@ -155,7 +156,7 @@ class Contact(Stage):
             # smoothing pushed into contact)
             laplacian_smooth(X, X0, True, ring, loc, lptr, lnbr, lw, 0.5, passes, L, buf)
             if (r + 1) % exact == 0 or r == rounds - 1:
-                project_contacts(X, self.V0, near, *args[2:], moved, plane, hit, True,
+                project_contacts(X, self.V0, near, *args, moved, plane, hit, True,
                                  self._pre)
             else:
                 hold_planes(X, zone, moved, plane)
