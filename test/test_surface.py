@@ -159,6 +159,62 @@ def test_inflation_gives_volume_back_inside_the_bulge_envelope(small_arm):
     assert res["inflated"][0] <= res["bulge"][0] + 1.0, res
 
 
+def test_region_volume_kernel_follows_its_numpy_reference(small_arm):
+    """The joint region's layers in one kernel (a speed lever) move the
+    skin as the same layers written in numpy do, to 1e-12 m, at the elbow
+    bent to 150 degrees after the bulge limit and contact, where both
+    phases (inside the bulge envelope, then past it) run."""
+    from skin_node.kernels.shape import (cone_volume_gradient, envelope_room,
+                                         keep_region_volume)
+    ch = small_arm
+    pipe = Pipeline(ch, ["dqs", "bulge", "contact", "inflate"])
+    pipe.deform(ch.pose(elbow_rz=np.radians(150)))
+    fr, st = pipe.last_frame, pipe.stages[3]
+    j = ch.skeleton.index("elbow")
+    v, t, inc, F = st.verts[j], st.tris[j], st.inc[j], st.F
+    X0 = fr.surface.copy()
+    X0[v] -= 0.08 * (X0[v] - fr.G[j, :3, 3])        # a region short of its volume
+    free = np.ones(len(X0))
+    free[v[::3]] = 0.5
+    # a small cap: the region is still short after four layers, so the last four run too
+    c, limit, cap = fr.G[j, :3, 3].copy(), 0.1, 0.01 * st.radius[j]
+    mob = st.mob[j] * fr.fade[j]
+    # the reference: the layers as numpy arrays
+    X, g = X0.copy(), np.empty((len(v), 3))
+    vol = cone_volume_gradient(X, F, t, c, *inc, v, g)
+    steps = 0
+    for it in range(8):
+        deficit = st.vol0[j] - vol
+        if abs(deficit) <= 2e-3 * abs(st.vol0[j]) or (deficit <= 0.0 and it >= 4):
+            break
+        m, room = mob.copy(), None
+        if deficit > 0.0:
+            m = m * free[v]
+            if it < 4:
+                room = np.empty(len(v))
+                envelope_room(X, v, st.seg, st.r0, st.hold, fr.seg_A, fr.seg_B, limit, room)
+                x = np.clip(room / np.maximum(0.5 * limit * st.r0[v, 0], 1e-12), 0.0, 1.0)
+                m = m * x * x * (3.0 - 2.0 * x)
+        a = np.linalg.norm(g, axis=1)
+        den = float((m * a).sum())
+        if den <= 0.0:
+            continue
+        step = np.clip((deficit / den) * m, -cap, cap)
+        if room is not None:
+            step = np.minimum(step, room)
+        X[v] += step[:, None] * (g / np.maximum(a, 1e-30)[:, None])
+        vol = cone_volume_gradient(X, F, t, c, *inc, v, g)
+        steps += 1
+    Y = X0.copy()
+    got = keep_region_volume(Y, F, t, c, *inc, v, mob, free, st.seg, st.r0, st.hold,
+                             fr.seg_A, fr.seg_B, limit, st.vol0[j], cap, np.empty((len(v), 3)),
+                             np.empty(len(v)), np.empty(len(v)))
+    assert steps == 8, steps
+    assert np.abs(Y - X).max() <= 1e-12, np.abs(Y - X).max()
+    assert abs(got - vol) <= 1e-12 * abs(vol)
+    assert np.abs(Y - X0).max() > 1e-4           # it did move skin
+
+
 def capsule(path, r=0.045, length=0.5, h=0.008):
     """A capsule limb along +x meshed by marching cubes (not one of ours),
     with a two-bone character file: root at one end, a hinge in the middle."""
