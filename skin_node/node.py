@@ -327,6 +327,10 @@ class SkinNode(Node):
         if tuple(pipe.stage_names) != live.stages:
             pipe = spare or skin_node.Pipeline(self.character, stages=list(live.stages),
                                                **live.params)
+            # as at start-up: new stages compile their kernels (from numba's cache
+            # when it has them) here, not in the middle of real frames, where one
+            # worker compiling would hold back every frame published after its own
+            pipe.warm_up()
         changed = {k: v for k, v in live.params.items() if pipe.params[k] != v}
         if changed:
             pipe.set_params(**changed)
