@@ -25,7 +25,51 @@ ROUNDS = 1
 NO_LIMIT = 1e30
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, inline="always")
+def _allow(X, i, seg, r0, hold, A, B, width, fade, allowed):
+    """:func:`bulge_allowance` of one vertex."""
+    for s in range(seg.shape[1]):
+        allowed[i, s] = NO_LIMIT
+    if fade[i] <= 0.0:
+        return
+    px, py, pz = X[i, 0], X[i, 1], X[i, 2]
+    for s in range(seg.shape[1]):
+        if hold[i, s] <= 0.0:
+            continue
+        w = width[i] / hold[i, s]
+        cx, cy, cz = _closest_on_segment(px, py, pz, A, B, seg[i, s])
+        e = math.sqrt((px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2) - r0[i, s]
+        if e > 0.0:
+            allowed[i, s] = r0[i, s] + w * math.tanh(e / w)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _limit(X, i, seg, A, B, fade, allowed):
+    """:func:`limit_bulge` of one vertex: 1 if it moved, else 0."""
+    f = fade[i]
+    if f <= 0.0:
+        return 0
+    px, py, pz = X[i, 0], X[i, 1], X[i, 2]
+    qx, qy, qz = px, py, pz
+    for _ in range(ROUNDS):
+        for s in range(seg.shape[1]):
+            if allowed[i, s] >= NO_LIMIT:
+                continue
+            cx, cy, cz = _closest_on_segment(qx, qy, qz, A, B, seg[i, s])
+            ux, uy, uz = qx - cx, qy - cy, qz - cz
+            r = math.sqrt(ux * ux + uy * uy + uz * uz)
+            if r > allowed[i, s] and r > 1e-12:
+                c = allowed[i, s] / r
+                qx, qy, qz = cx + ux * c, cy + uy * c, cz + uz * c
+    if qx == px and qy == py and qz == pz:
+        return 0
+    X[i, 0] = px + f * (qx - px)
+    X[i, 1] = py + f * (qy - py)
+    X[i, 2] = pz + f * (qz - pz)
+    return 1
+
+
+@nb.njit(cache=True, nogil=True, parallel=True)
 def bulge_allowance(X, verts, seg, r0, hold, A, B, width, fade, allowed):
     """How far from each of its nearest bone segments every vertex of
     ``verts`` may stand, from where skinning put it (``X``).
@@ -42,25 +86,13 @@ def bulge_allowance(X, verts, seg, r0, hold, A, B, width, fade, allowed):
     nearest segments changes, and skin about as near several (the buttocks,
     between the pelvis's bones and a thigh's) is held by each in full.
     Writes ``allowed[i]`` (n, k): the distances, :data:`NO_LIMIT` where none
-    applies (and for vertices whose ``fade`` is 0)."""
-    for k in range(verts.shape[0]):
-        i = verts[k]
-        for s in range(seg.shape[1]):
-            allowed[i, s] = NO_LIMIT
-        if fade[i] <= 0.0:
-            continue
-        px, py, pz = X[i, 0], X[i, 1], X[i, 2]
-        for s in range(seg.shape[1]):
-            if hold[i, s] <= 0.0:
-                continue
-            w = width[i] / hold[i, s]
-            cx, cy, cz = _closest_on_segment(px, py, pz, A, B, seg[i, s])
-            e = math.sqrt((px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2) - r0[i, s]
-            if e > 0.0:
-                allowed[i, s] = r0[i, s] + w * math.tanh(e / w)
+    applies (and for vertices whose ``fade`` is 0). Vertices are independent:
+    threads share them out."""
+    for k in nb.prange(verts.shape[0]):
+        _allow(X, verts[k], seg, r0, hold, A, B, width, fade, allowed)
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, parallel=True)
 def limit_bulge(X, verts, seg, A, B, fade, allowed):
     """Bring every vertex of ``verts`` within its :func:`bulge_allowance` of
     each of its segments: :data:`ROUNDS` rounds of alternating projections
@@ -69,31 +101,24 @@ def limit_bulge(X, verts, seg, A, B, fade, allowed):
     where a blend of the pulls left skin between two bones standing out by
     half of each. Projection is idempotent, so a second call after smoothing
     takes back only what the smoothing gave away. Returns how many vertices
-    moved."""
+    moved (vertices are independent: threads share them out)."""
     n = 0
-    for k in range(verts.shape[0]):
+    for k in nb.prange(verts.shape[0]):
+        n += _limit(X, verts[k], seg, A, B, fade, allowed)
+    return n
+
+
+@nb.njit(cache=True, nogil=True, parallel=True)
+def pull_bulge(X, verts, seg, r0, hold, A, B, width, fade, allowed):
+    """:func:`bulge_allowance` then :func:`limit_bulge`, in one pass over the
+    vertices (each vertex's limits depend on its own skinned position alone,
+    so the skin comes out the same, without reading it twice). Returns how
+    many vertices moved."""
+    n = 0
+    for k in nb.prange(verts.shape[0]):
         i = verts[k]
-        f = fade[i]
-        if f <= 0.0:
-            continue
-        px, py, pz = X[i, 0], X[i, 1], X[i, 2]
-        qx, qy, qz = px, py, pz
-        for _ in range(ROUNDS):
-            for s in range(seg.shape[1]):
-                if allowed[i, s] >= NO_LIMIT:
-                    continue
-                cx, cy, cz = _closest_on_segment(qx, qy, qz, A, B, seg[i, s])
-                ux, uy, uz = qx - cx, qy - cy, qz - cz
-                r = math.sqrt(ux * ux + uy * uy + uz * uz)
-                if r > allowed[i, s] and r > 1e-12:
-                    c = allowed[i, s] / r
-                    qx, qy, qz = cx + ux * c, cy + uy * c, cz + uz * c
-        if qx == px and qy == py and qz == pz:
-            continue
-        X[i, 0] = px + f * (qx - px)
-        X[i, 1] = py + f * (qy - py)
-        X[i, 2] = pz + f * (qz - pz)
-        n += 1
+        _allow(X, i, seg, r0, hold, A, B, width, fade, allowed)
+        n += _limit(X, i, seg, A, B, fade, allowed)
     return n
 
 

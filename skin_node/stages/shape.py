@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels.shape import (bulge_allowance, cone_volume_gradient, enclosed_volume,
-                             envelope_clamp, envelope_room, keep_region_volume, limit_bulge,
+from ..kernels.shape import (cone_volume_gradient, enclosed_volume, envelope_clamp,
+                             envelope_room, keep_region_volume, limit_bulge, pull_bulge,
                              region_incidence, split_fade)
 from ..kernels.smoothing import gather_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
@@ -101,9 +101,8 @@ class Bulge(Stage):
         # the skin before the pull: a whole copy costs less than gathering the ring
         base = X.copy()
         allowed = self._allowed
-        bulge_allowance(X, verts, self.seg, self.r0, self.hold, fr.seg_A, fr.seg_B,
-                        self._width[1], fade, allowed)
-        n = limit_bulge(X, verts, self.seg, fr.seg_A, fr.seg_B, fade, allowed)
+        n = pull_bulge(X, verts, self.seg, self.r0, self.hold, fr.seg_A, fr.seg_B,
+                       self._width[1], fade, allowed)
         fr.counts["bulge_vertices"] = n
         passes = int(self.params["bulge_smoothing"])
         if n and passes:
