@@ -149,6 +149,12 @@ class SkinNode(Node):
         self._declare_parameters()
         p = lambda name: self.get_parameter(name).value  # noqa: E731
 
+        workers = p("workers")
+        if workers > 1 and p("warm_start"):
+            # before the set-up: a conflict of parameters needs no character,
+            # and its one-line error must not wait behind set-up progress
+            raise ValueError(f"warm_start needs workers:=1 (each of {workers} workers "
+                             "would carry the history of only the frames it took)")
         n, spec, weights = p("surface_vertices"), p("character"), p("weights")
         try:
             self.character = skin_node.load_character(
@@ -166,11 +172,7 @@ class SkinNode(Node):
         name_map = load_name_map(p("name_map")) if p("name_map") else None
         self._mapper = ChannelMapper(self.character.channel_names, name_map)
         kwargs = {k: p(k) for k in skin_node.PIPELINE_PARAMS}
-        workers = p("workers")
         if workers > 1:
-            if kwargs["warm_start"]:
-                raise ValueError(f"warm_start needs workers:=1 (each of {workers} workers "
-                                 "would carry the history of only the frames it took)")
             allow_concurrent_calls()            # the workers deform at the same time
         stages = list(p("pipeline"))
         self._pipes = [skin_node.Pipeline(self.character, stages=stages, **kwargs)
