@@ -21,13 +21,13 @@ def _closest_on_segment(px, py, pz, A, B, s):
 #: squat (two are within 0.1 mm of four), and no surface measure or z-buffer
 #: picture tells them apart, for 15% of the stage's time.
 ROUNDS = 1
-#: "No limit" in :func:`bulge_allowance`'s output.
+#: "No limit" in :func:`pull_bulge`'s limits.
 NO_LIMIT = 1e30
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def _allow(X, i, seg, r0, hold, A, B, width, fade, allowed):
-    """:func:`bulge_allowance` of one vertex."""
+    """:func:`pull_bulge`'s limits of vertex ``i``."""
     for s in range(seg.shape[1]):
         allowed[i, s] = NO_LIMIT
     if fade[i] <= 0.0:
@@ -70,32 +70,9 @@ def _limit(X, i, seg, A, B, fade, allowed):
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
-def bulge_allowance(X, verts, seg, r0, hold, A, B, width, fade, allowed):
-    """How far from each of its nearest bone segments every vertex of
-    ``verts`` may stand, from where skinning put it (``X``).
-
-    The paper's bind constraint ``C = |p - p'| - d`` (p' the closest point of
-    the vertex's bone segment, posed ``A``-``B``; ``d`` its rest distance
-    ``r0``), made one-sided and soft: skin further out than at rest by ``e``
-    may stand ``w tanh(e / w)`` out (never more than ``w``, unchanged to first
-    order where ``e`` is small); skin nearer than at rest has no limit.
-    ``seg`` and ``r0`` (n, k) are each vertex's k nearest rest segments and
-    distances, ``hold`` (n, k) how far each one's limit holds: ``w = width /
-    hold``, 1 for the nearest, falling to 0 (no limit) as a segment is
-    further. So a limit comes and goes smoothly wherever the order of the
-    nearest segments changes, and skin about as near several (the buttocks,
-    between the pelvis's bones and a thigh's) is held by each in full.
-    Writes ``allowed[i]`` (n, k): the distances, :data:`NO_LIMIT` where none
-    applies (and for vertices whose ``fade`` is 0). Vertices are independent:
-    threads share them out."""
-    for k in nb.prange(verts.shape[0]):
-        _allow(X, verts[k], seg, r0, hold, A, B, width, fade, allowed)
-
-
-@nb.njit(cache=True, nogil=True, parallel=True)
 def limit_bulge(X, verts, seg, A, B, fade, allowed):
-    """Bring every vertex of ``verts`` within its :func:`bulge_allowance` of
-    each of its segments: :data:`ROUNDS` rounds of alternating projections
+    """Bring every vertex of ``verts`` within its limits (:func:`pull_bulge`)
+    from each of its segments: :data:`ROUNDS` rounds of alternating projections
     onto the limits (towards each segment's closest point, the skin's radial
     direction), the move scaled by ``fade`` (n,). The limits hold at once,
     where a blend of the pulls left skin between two bones standing out by
@@ -110,10 +87,25 @@ def limit_bulge(X, verts, seg, A, B, fade, allowed):
 
 @nb.njit(cache=True, nogil=True, parallel=True)
 def pull_bulge(X, verts, seg, r0, hold, A, B, width, fade, allowed):
-    """:func:`bulge_allowance` then :func:`limit_bulge`, in one pass over the
-    vertices (each vertex's limits depend on its own skinned position alone,
-    so the skin comes out the same, without reading it twice). Returns how
-    many vertices moved."""
+    """Every vertex of ``verts`` drawn within how far from each of its
+    nearest bone segments it may stand, from where skinning put it (``X``).
+
+    The paper's bind constraint ``C = |p - p'| - d`` (p' the closest point of
+    the vertex's bone segment, posed ``A``-``B``; ``d`` its rest distance
+    ``r0``), made one-sided and soft: skin further out than at rest by ``e``
+    may stand ``w tanh(e / w)`` out (never more than ``w``, unchanged to first
+    order where ``e`` is small); skin nearer than at rest has no limit.
+    ``seg`` and ``r0`` (n, k) are each vertex's k nearest rest segments and
+    distances, ``hold`` (n, k) how far each one's limit holds: ``w = width /
+    hold``, 1 for the nearest, falling to 0 (no limit) as a segment is
+    further. So a limit comes and goes smoothly wherever the order of the
+    nearest segments changes, and skin about as near several (the buttocks,
+    between the pelvis's bones and a thigh's) is held by each in full.
+    Writes ``allowed[i]`` (n, k): the distances, :data:`NO_LIMIT` where none
+    applies (and for vertices whose ``fade`` is 0), then projects onto them as
+    :func:`limit_bulge` does, in the same pass (each vertex's limits depend on
+    its own skinned position alone). Vertices are independent: threads share
+    them out. Returns how many vertices moved."""
     n = 0
     for k in nb.prange(verts.shape[0]):
         i = verts[k]
@@ -125,7 +117,7 @@ def pull_bulge(X, verts, seg, r0, hold, A, B, width, fade, allowed):
 @nb.njit(cache=True, nogil=True, inline="always")
 def _envelope(i, s, r0, hold, width):
     """Vertex ``i``'s envelope around its ``s``-th nearest segment: its rest
-    distance plus ``width``, loosened as in :func:`bulge_allowance`."""
+    distance plus ``width``, loosened as in :func:`pull_bulge`."""
     return r0[i, s] + width / hold[i, s] if hold[i, s] > 0.0 else NO_LIMIT
 
 

@@ -38,7 +38,7 @@ class Bulge(Stage):
     of its outer side around the joint at a radius larger than the limb's,
     which shows as a bulge (Kavan et al. 2007 name it). This is the paper's
     bind constraint on the skin, made one-sided and soft
-    (:func:`~skin_node.kernels.shape.bulge_allowance`,
+    (:func:`~skin_node.kernels.shape.pull_bulge`,
     :func:`~skin_node.kernels.shape.limit_bulge`): skin further from its bone
     than at rest is drawn back to at most ``bulge_limit`` times its rest
     distance out, skin nearer than at rest is left as it is. Skin about as
