@@ -99,6 +99,19 @@ class Character:
         return adjacency_weights(self.V, self.rig.adj_ptr, self.rig.adj)
 
     @cached_property
+    def mean_edges(self) -> np.ndarray:
+        """(n,) the mean length at rest of the edges of each body vertex's
+        triangles (each edge once per triangle): the local resolution the
+        contact margin and the mush are measured in."""
+        F = self.F
+        e = np.linalg.norm(self.V[F] - self.V[np.roll(F, 1, axis=1)], axis=2)   # (m, 3)
+        esum, ecount = np.zeros(len(self.V)), np.zeros(len(self.V))
+        for k in range(3):
+            np.add.at(esum, F[:, k], e[:, k])
+            np.add.at(ecount, F[:, k], 1)
+        return esum / np.maximum(ecount, 1)
+
+    @cached_property
     def nearest_segments(self) -> tuple:
         """``(seg, r0, hold)`` of the body's rest surface
         (:func:`~skin_node.rigging.weights.nearest_segments`), built once and

@@ -98,6 +98,9 @@ PIPELINE_PARAMS = {
                                "elsewhere)", choices=WEIGHT_SCHEMES),
     "contact_margin": ParamSpec(float, 0.75, 0.0, 3.0, "gap each side of a fold keeps from the "
                                 "surface where the two parts meet, in mean edges"),
+    "contact_onset": ParamSpec(float, 2.0, 0.0, 8.0, "how far outside the other part's flesh "
+                               "contact starts, in sagittas of the local edges' chords (each "
+                               "side's flat triangles sink below its round surface by one)"),
     "contact_rounds": ParamSpec(int, 4, 0, 50, "projection and smoothing rounds of the contact "
                                 "stage"),
     "contact_exact_every": ParamSpec(int, 2, 1, 50, "rounds between exact projections of the "

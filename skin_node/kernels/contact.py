@@ -208,7 +208,7 @@ def _in_grid(origin, cell, dims, j, x, y, z, pad):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, face0, face1,
+def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, onset, face0, face1,
                   iterations, only, pre):
     """The most violated contact constraint of vertex ``i`` of part ``a``
     among parts ``cand[c0:c1]``: (C, gradient x, y, z, the part); C >= 0
@@ -257,17 +257,17 @@ def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, face0, fa
             if s_rigid >= FAR:
                 continue
             shift = 1.25 * _reach(pf, Minv, b, a, px, py, pz, xb, yb, zb)
-            if s_rigid > shift and shift <= REACH * 2.0 * cell[b]:
+            if s_rigid > shift + onset[i] and shift <= REACH * 2.0 * cell[b]:
                 continue
             xa, ya, za = rx, ry, rz
         sb, ux, uy, uz, qbx, qby, qbz = skinned_field(pf, Q, b, px, py, pz, xb, yb, zb, n,
                                                       False, a)
-        if sb >= 0.0:
+        if sb >= onset[i]:
             continue
         sa, vx, vy, vz, qax, qay, qaz = skinned_field(pf, Q, a, px, py, pz, xa, ya, za, n,
                                                       True, b)
-        C = _gated(sb, sa, ux, uy, uz, vx, vy, vz, margin[i], pf, a, b, rx, ry, rz, face0,
-                   face1)
+        C = _gated(sb, sa, ux, uy, uz, vx, vy, vz, margin[i], onset[i], pf, a, b, rx, ry, rz,
+                   face0, face1)
         if C < worst:
             worst, wx, wy, wz, wb = C, ux - vx, uy - vy, uz - vz, b
             pre[i, 0], pre[i, 1], pre[i, 2] = qbx, qby, qbz
@@ -276,19 +276,28 @@ def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, face0, fa
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _gated(sb, sa, ux, uy, uz, vx, vy, vz, margin, pf, a, b, rx, ry, rz, face0, face1):
-    """The constraint ``s_b - s_a - min(m, rest)`` of a vertex inside part
-    ``b``'s flesh (``sb`` < 0), faded in over the first margin of depth and
-    out where the two parts' gradients agree; >= 0 when satisfied."""
+def _gated(sb, sa, ux, uy, uz, vx, vy, vz, margin, onset, pf, a, b, rx, ry, rz, face0, face1):
+    """The constraint ``s_b - s_a - min(m, rest)`` of a vertex in or near part
+    ``b``'s flesh (``sb`` < ``onset``), faded in from ``onset`` outside it
+    to a margin of depth and out where the two parts' gradients agree; >= 0
+    when satisfied.
+
+    Faded in from the flesh's surface, the constraint moved skin in the first
+    margin of depth a fraction of the way out and skin on the surface not at
+    all; on a fine mesh that is harmless, but the flat triangles of a coarse
+    limb sink below its round surface between the vertices (by the chord's
+    sagitta), so where one lay on another their triangles crossed while every
+    vertex stayed outside (CesiumMan's arms on its hips). ``onset`` is a few
+    such sagittas: on fine skin a fraction of a millimetre."""
     origin, cell, dims, ptr, values = pf[0], pf[1], pf[2], pf[3], pf[4]
     ra, _, _, _ = field_at(values, ptr, origin, cell, dims, a, rx, ry, rz, True)
     rb, _, _, _ = field_at(values, ptr, origin, cell, dims, b, rx, ry, rz, False)
     C = sb - sa - min(margin, rb - ra)
     if C >= 0.0:
         return C
-    # only skin inside the other part's flesh is in contact; the constraint
-    # fades in over the first margin of depth, so nothing jumps
-    t = min(1.0, -sb / max(margin, 1e-9))
+    # the constraint fades in from ``onset`` outside the other part's flesh
+    # to a margin inside it, so nothing jumps
+    t = min(1.0, (onset - sb) / max(onset + margin, 1e-9))
     C *= t * t * (3.0 - 2.0 * t)
     # where the two parts' skins run on into each other (across a cut) their
     # fields rise together and their difference says nothing: fade out
@@ -299,8 +308,8 @@ def _gated(sb, sa, ux, uy, uz, vx, vy, vz, margin, pf, a, b, rx, ry, rz, face0, 
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
-def project_contacts(X, V0, verts, side, cand_ptr, cand, Q, Minv, pf, box, margin, face0,
-                     face1, iterations, steps, moved, plane, hit, recheck, pre):
+def project_contacts(X, V0, verts, side, cand_ptr, cand, Q, Minv, pf, box, margin, onset,
+                     face0, face1, iterations, steps, moved, plane, hit, recheck, pre):
     """Project every vertex of ``verts`` out of the other parts' flesh, up to
     ``steps`` Newton steps each (vertices are independent: Jacobi, so they
     run in parallel and the result does not depend on the threads). Parts to
@@ -334,7 +343,7 @@ def project_contacts(X, V0, verts, side, cand_ptr, cand, Q, Minv, pf, box, margi
         only = hit[i] if recheck else -1
         for _ in range(steps):
             C, gx, gy, gz, b = worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box,
-                                             margin, face0, face1, iterations, only, pre)
+                                             margin, onset, face0, face1, iterations, only, pre)
             if C >= 0.0:
                 break
             hit[i] = b

@@ -76,13 +76,12 @@ class Contact(Stage):
         # each part's grid box in its rest frame
         self._lo = r.field_origin
         self._hi = r.field_origin + (np.maximum(r.field_dims, 1) - 1) * r.field_cell[:, None]
-        F = character.F
-        e = np.linalg.norm(self.V0[F] - self.V0[np.roll(F, 1, axis=1)], axis=2)   # (m, 3)
-        esum, ecount = np.zeros(len(self.V0)), np.zeros(len(self.V0))
-        for k in range(3):
-            np.add.at(esum, F[:, k], e[:, k])
-            np.add.at(ecount, F[:, k], 1)
-        self._edge = esum / np.maximum(ecount, 1)           # mean edge at each vertex
+        self._edge = character.mean_edges
+        # how far a flat triangle of a limb's skin sinks below its round
+        # surface: a chord's sagitta, (edge / 2)^2 / (2 radius), radius the
+        # skin's rest distance from its bone
+        r0 = character.nearest_segments[1][:, 0]
+        self._sag = self._edge ** 2 / (8.0 * np.maximum(r0, self._edge))
         self._edge_max = float(self._edge.max())
         self._ptr, self._adj = r.adj_ptr, r.adj
         self._w_adj = character.edge_weights
@@ -124,10 +123,11 @@ class Contact(Stage):
         X0 = X.copy()
         Q = matrices_to_dual_quaternions(fr.M)
         margin = float(self.params["contact_margin"]) * self._edge
+        onset = float(self.params["contact_onset"]) * self._sag
         moved = self._moved
         moved[:] = False
         # what both projections read besides the skin and the vertices to test
-        args = (self.part, cand_ptr, cand, Q, Minv, self.fields, box, margin,
+        args = (self.part, cand_ptr, cand, Q, Minv, self.fields, box, margin, onset,
                 FACE[0], FACE[1], CARRY_ITERATIONS, STEPS)
         rounds = int(self.params["contact_rounds"])
         rings = int(self.params["contact_rings"])

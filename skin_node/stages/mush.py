@@ -52,12 +52,7 @@ class Mush(Stage):
         self._SX, self._SV = np.empty((n, 3)), np.empty((n, 3))
         sj, A, B = character.skeleton.bone_segments()
         radius = point_segment_distance(self.V0, A, B).min(axis=1) if len(A) else np.zeros(n)
-        e = np.linalg.norm(self.V0[self.F] - self.V0[np.roll(self.F, 1, axis=1)], axis=2)
-        esum, ecount = np.zeros(n), np.zeros(n)
-        for k in range(3):
-            np.add.at(esum, self.F[:, k], e[:, k])
-            np.add.at(ecount, self.F[:, k], 1)
-        x = np.clip((radius * ecount / np.maximum(esum, 1e-12) - RESOLUTION[0])
+        x = np.clip((radius / np.maximum(character.mean_edges, 1e-12) - RESOLUTION[0])
                     / (RESOLUTION[1] - RESOLUTION[0]), 0.0, 1.0)
         #: how much of the mush each vertex takes (0 where its limb is too coarse)
         self.resolved = x * x * (3.0 - 2.0 * x)
