@@ -83,6 +83,7 @@ class Contact(Stage):
         r0 = character.nearest_segments[1][:, 0]
         self._sag = self._edge ** 2 / (8.0 * np.maximum(r0, self._edge))
         self._edge_max = float(self._edge.max())
+        self._sag_max = float(self._sag.max())
         self._ptr, self._adj = r.adj_ptr, r.adj
         self._w_adj = character.edge_weights
         n = len(self.V0)
@@ -101,7 +102,9 @@ class Contact(Stage):
         J = self._J
         M = np.ascontiguousarray(fr.M)
         Minv = np.ascontiguousarray(np.linalg.inv(M))
-        reach = (float(self.params["contact_margin"]) + 1.0) * self._edge_max
+        # contact starts within ``onset`` of a part's flesh; an edge more
+        # covers the flesh's field against the skin it was built from
+        reach = self._edge_max + float(self.params["contact_onset"]) * self._sag_max
         box = np.empty((J, 2, 3))
         cand_ptr = np.empty(J + 1, dtype=np.int64)
         cand = np.empty(J * J, dtype=np.int64)
