@@ -105,6 +105,9 @@ PIPELINE_PARAMS = {
                                 "stage"),
     "contact_exact_every": ParamSpec(int, 2, 1, 50, "rounds between exact projections of the "
                                      "contact stage (tangent planes hold the skin between)"),
+    "contact_settle": ParamSpec(int, 1, 0, 50, "Laplacian passes over the contact's "
+                                "displacement after its last exact projection, the skin held "
+                                "by the constraints' tangent planes"),
     "contact_rings": ParamSpec(int, 3, 0, 20, "rings around skin in contact that follow it"),
     "contact_smoothing": ParamSpec(int, 4, 0, 50, "Laplacian passes over the contact's "
                                    "displacement per round"),

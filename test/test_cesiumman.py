@@ -152,6 +152,28 @@ def run(ch, clip, q):
     return measures(ch, qs, [ours.deform(x).copy() for x in qs])
 
 
+def test_coarse_contact_against_dqs_and_its_settling(characters, motions):
+    """CesiumMan's arms lie on its hips through the CMU walk (every 12th
+    frame, automatic weights), on skin coarser than the limbs are thick.
+    Exact intersecting pairs stay under 30% of DQS's (1113 of 4873 measured),
+    and the settling pass after the contact's last projection (one
+    Laplacian pass with the constraints held) takes out more than half of the
+    sharp folds the projection leaves (77 against 207 without it)."""
+    from skin_node.kernels.intersect import SelfIntersections
+    from skin_node.metrics import SurfaceQuality
+    ch = characters["automatic"]
+    q = motions["walk"][2]
+    qs = [q[t] for t in frames_of("walk", q, ch)]
+    si, sq = SelfIntersections(ch.V, ch.F, 0.0), SurfaceQuality(ch.V, ch.F)
+    out = {}
+    for name, pipe in (("dqs", Pipeline.preset(ch, "dqs")), ("ours", Pipeline(ch)),
+                       ("unsettled", Pipeline(ch, contact_settle=0))):
+        Vs = [pipe.deform(x).copy() for x in qs]
+        out[name] = (sum(len(si.pairs(V)) for V in Vs), sum(sq(V)["folds90"] for V in Vs))
+    assert out["ours"][0] <= 0.3 * out["dqs"][0], out
+    assert out["ours"][1] <= 0.5 * out["unsettled"][1], out
+
+
 @pytest.fixture(scope="module")
 def acceptance(characters, motions):
     return {(w, c): run(characters[w], c, motions[c][2]) for w in characters for c in CLIPS}

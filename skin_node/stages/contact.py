@@ -54,8 +54,9 @@ class Contact(Stage):
     apart. Then Laplacian smoothing of the contact's displacement over
     ``contact_rings`` rings and the constraints' tangent planes alternate
     ``contact_rounds`` times (an obstacle problem solved by projected Jacobi:
-    the skin leaves the contact smoothly instead of with a step), and a last
-    exact projection holds the margin.
+    the skin leaves the contact smoothly instead of with a step), a last
+    exact projection holds the margin, and ``contact_settle`` passes of the
+    smoothing with the tangent planes held spread its steps.
     Which bones meet does not matter: an elbow folding, a heel against a
     thigh, an arm against the chest are the same test.
     """
@@ -163,6 +164,14 @@ class Contact(Stage):
                                  self._pre)
             else:
                 hold_planes(X, zone, moved, plane)
+        last = int(self.params["contact_settle"])
+        if last:
+            # the last exact projection moved the skin it found in contact on
+            # its own; spread those steps over their neighbours, the
+            # constraints held by their tangent planes (without it CesiumMan's
+            # walk kept three times the sharp folds)
+            laplacian_smooth(X, X0, True, ring, loc, lptr, lnbr, lw, 0.5, last, L, buf)
+            hold_planes(X, zone, moved, plane)
         touched = np.flatnonzero(moved)
         fr.counts["contact_vertices"] = len(touched)
         fr.touched.append(touched)
