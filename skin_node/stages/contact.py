@@ -164,13 +164,13 @@ class Contact(Stage):
                                  self._pre)
             else:
                 hold_planes(X, zone, moved, plane)
-        last = int(self.params["contact_settle"])
-        if last:
+        settle = int(self.params["contact_settle"])
+        if settle:
             # the last exact projection moved the skin it found in contact on
             # its own; spread those steps over their neighbours, the
             # constraints held by their tangent planes (without it CesiumMan's
             # walk kept three times the sharp folds)
-            laplacian_smooth(X, X0, True, ring, loc, lptr, lnbr, lw, 0.5, last, L, buf)
+            laplacian_smooth(X, X0, True, ring, loc, lptr, lnbr, lw, 0.5, settle, L, buf)
             hold_planes(X, zone, moved, plane)
         touched = np.flatnonzero(moved)
         fr.counts["contact_vertices"] = len(touched)
