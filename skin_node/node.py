@@ -51,10 +51,17 @@ their poses arrived. The deform kernels release the GIL, so two workers on
 two cores answer about 1.4 times as many poses as one (the 24k humanoid at
 120 Hz), at some more latency.
 
+With ``isolation:=process`` each worker's pipeline lives in a child process
+(:class:`skin_node.remote.RemotePipeline`, fed through shared memory): the
+same skin, bitwise, and a worker that crashes fails one frame and is started
+again. It buys no measurable speed on two cores (the deform is bound by its own work,
+not by the GIL it shares with the executor) and costs a second copy of the
+character in memory, so ``thread`` is the default.
+
 Parameter changes pass the set-parameters callback's checks and take effect
 at the start of the next frame each worker takes; ``character``,
-``surface_vertices``, ``name_map``, ``weights``, ``workers`` and
-``joint_names`` are read-only.
+``surface_vertices``, ``name_map``, ``weights``, ``workers``, ``isolation``
+and ``joint_names`` are read-only.
 """
 from __future__ import annotations
 
@@ -84,6 +91,7 @@ from msg_adapters import (TIME_JUMP_TOLERANCE_S, ChannelMapper, JointStateError,
                           mesh_to_msg, triangle_list_marker_cdr, vertices_to_point_cloud2)
 from skin_node.kernels.threads import allow_concurrent_calls, check_concurrent_calls
 from skin_node.processes import build, init_ros, spin_until_shutdown
+from skin_node.remote import RemoteError, RemotePipeline
 
 NODE_NAME = "skin_node"
 THROTTLE_S = 2.0
@@ -155,6 +163,8 @@ class SkinNode(Node):
             # and its one-line error must not wait behind set-up progress
             raise ValueError(f"warm_start needs workers:=1 (each of {workers} workers "
                              "would carry the history of only the frames it took)")
+        if p("isolation") not in ("process", "thread"):
+            raise ValueError(f"isolation must be 'process' or 'thread', got {p('isolation')!r}")
         n, spec, weights = p("surface_vertices"), p("character"), p("weights")
         try:
             self.character = skin_node.load_character(
@@ -172,20 +182,36 @@ class SkinNode(Node):
         name_map = load_name_map(p("name_map")) if p("name_map") else None
         self._mapper = ChannelMapper(self.character.channel_names, name_map)
         kwargs = {k: p(k) for k in skin_node.PIPELINE_PARAMS}
-        if workers > 1:
-            allow_concurrent_calls()            # the workers deform at the same time
         stages = list(p("pipeline"))
-        self._pipes = [skin_node.Pipeline(self.character, stages=stages, **kwargs)
-                       for _ in range(workers)]
-        # Every worker's pipeline warms up (after the first, the kernels are
-        # compiled and this builds their lazy caches), so the first real frame
-        # runs at full speed.
-        try:
-            warm_s = sum(pipe.warm_up() for pipe in self._pipes)
-        except ValueError as e:
-            raise ValueError(f"{p('character')}: {e}") from None
-        if workers > 1:
-            check_concurrent_calls(f"workers:={workers}")
+        self._isolated = p("isolation") == "process"
+        if self._isolated:
+            # checked here first: a bad stage list or value is one line, at once
+            skin_node.Pipeline(self.character, stages=stages, **kwargs)
+            load = {"spec": spec, "weights": weights, **({"surface_vertices": n} if n > 0 else {})}
+            self._pipes = []
+            try:
+                # each set up and warmed up in its own process, all at once
+                self._pipes = [RemotePipeline(self.character, load, stages, wait=False, **kwargs)
+                               for _ in range(workers)]
+                warm_s = max(pipe.wait_ready() for pipe in self._pipes)
+            except (ValueError, RemoteError) as e:
+                for pipe in self._pipes:
+                    pipe.close()
+                raise ValueError(f"{p('character')}: {e}") from None
+        else:
+            if workers > 1:
+                allow_concurrent_calls()            # the workers deform at the same time
+            self._pipes = [skin_node.Pipeline(self.character, stages=stages, **kwargs)
+                           for _ in range(workers)]
+            # Every worker's pipeline warms up (after the first, the kernels are
+            # compiled and this builds their lazy caches), so the first real frame
+            # runs at full speed.
+            try:
+                warm_s = sum(pipe.warm_up() for pipe in self._pipes)
+            except ValueError as e:
+                raise ValueError(f"{p('character')}: {e}") from None
+            if workers > 1:
+                check_concurrent_calls(f"workers:={workers}")
 
         # Counters (written by the callback or the workers, read by the 1 Hz timer).
         self._rejected: Counter = Counter()
@@ -238,7 +264,10 @@ class SkinNode(Node):
             + ", ".join(f"{n} {g}" for g, n in gets.items()) + "), "
             + (f"stages {stages}" if ch.rig is not None else
                f"stages {stages} idle (no closed skinned part to solve)")
-            + f", {workers} worker{'s' if workers > 1 else ''}")
+            + f", {workers} worker{'s' if workers > 1 else ''}"
+            + (f" (deform process{'es' if workers > 1 else ''} "
+               + ", ".join(str(pipe.pid) for pipe in self._pipes) + ")"
+               if self._isolated else ""))
 
     # ------------------------------------------------------------ parameters
     def _declare_parameters(self) -> None:
@@ -264,6 +293,11 @@ class SkinNode(Node):
             description="frames deformed at once, each worker with its own pipeline; "
                         "results are published in input order (2 on two cores answer "
                         "about 1.4 times the poses of 1; warm_start needs 1)"))
+        self.declare_parameter("isolation", "thread", ParameterDescriptor(
+            type=S, read_only=True,
+            description="where each worker deforms: 'process' (a child process fed through "
+                        "shared memory, so rclpy and the deform never wait on one GIL) or "
+                        "'thread' (in this process)"))
         self.declare_parameter("frame_id", "world", ParameterDescriptor(
             type=S, description="frame of skin/points and skin/marker"))
         self.declare_parameter("name_map", "", ParameterDescriptor(
@@ -309,7 +343,7 @@ class SkinNode(Node):
                               updates.get("frame_id", live.frame_id))
         with self._cond:
             self._live = accepted
-            if spare is not None:
+            if spare is not None and not self._isolated:
                 self._spare = spare
         return SetParametersResult(successful=True)
 
@@ -326,7 +360,9 @@ class SkinNode(Node):
                 spare, self._spare = self._spare, None    # the first worker takes the checked one
             announce = self._announced is not live
             self._announced = live
-        if tuple(pipe.stage_names) != live.stages:
+        if tuple(pipe.stage_names) != live.stages and self._isolated:
+            pipe.set_stages(live.stages, **live.params)      # built and warmed up there
+        elif tuple(pipe.stage_names) != live.stages:
             pipe = spare or skin_node.Pipeline(self.character, stages=list(live.stages),
                                                **live.params)
             # as at start-up: new stages compile their kernels (from numba's cache
@@ -453,6 +489,7 @@ class SkinNode(Node):
             "unknown_names": ",".join(sorted(unknown)),
             "unknown_name_count": len(unknown),
             "time_jumps_back": self._stamps.jumps_back,
+            "worker_restarts": sum(getattr(pipe, "restarts", 0) for pipe in self._pipes),
             "parts": ",".join(part.summary() for part in self.character.parts),
             "fps": float(period["frames"]),
             "ms_per_frame": period["deform_ms"] / n,
@@ -484,6 +521,9 @@ class SkinNode(Node):
             self._cond.notify_all()
         for t in self._workers:
             t.join()
+        if self._isolated:
+            for pipe in self._pipes:
+                pipe.close()
 
 
 def main(args: list | None = None) -> int:

@@ -371,12 +371,15 @@ def test_burst_processes_newest_and_counts_stale(tmp_path):
     assert out == sorted(set(out)) and set(out) <= set(valid)
 
 
-def test_two_workers_publish_in_order_what_one_pipeline_gives(tmp_path):
+@pytest.mark.parametrize("isolation", ["thread", "process"])
+def test_two_workers_publish_in_order_what_one_pipeline_gives(tmp_path, isolation):
     stream, valid, _ = arm_stream(n_valid=60, hz=400.0, with_bad=False)
     write_bag(tmp_path / "in", "mcap", stream)
-    with arm_node(tmp_path, "-p", "workers:=2") as (proc, env, log):
+    with arm_node(tmp_path, "-p", "workers:=2", "-p", f"isolation:={isolation}") as (
+            proc, env, log):
         play_and_record(env, tmp_path / "in", tmp_path / "out")
         assert "2 workers" in log.read_text()
+        assert ("deform processes" in log.read_text()) == (isolation == "process")
     clouds, diag = read_outputs(tmp_path / "out")
     out = [stamp_ns(c) for c in clouds]
     processed, stale = int(diag["frames_processed"]), int(diag["frames_skipped_stale"])
@@ -393,11 +396,13 @@ def test_two_workers_publish_in_order_what_one_pipeline_gives(tmp_path):
         assert np.abs(point_cloud2_to_vertices(c) - ref).max() < 1e-6
 
 
-def test_two_workers_both_take_a_parameter_change(tmp_path):
+@pytest.mark.parametrize("isolation", ["thread", "process"])
+def test_two_workers_both_take_a_parameter_change(tmp_path, isolation):
     names = character_skeleton("arm").channel_names
     stages = ["dqs", "pbd", "collision", "smooth", "volume"]      # not the default order
     poses, got, diags = {}, [], []
-    with arm_node(tmp_path, "-p", "workers:=2") as (proc, env, log):
+    with arm_node(tmp_path, "-p", "workers:=2", "-p", f"isolation:={isolation}") as (
+            proc, env, log):
         with ros_client(env, "skin_node_workers_test") as (node, ex, set_params):
             sub = node.create_subscription(PointCloud2, "skin/points", got.append, 100)
             node.create_subscription(DiagnosticArray, "skin/diagnostics",
@@ -569,9 +574,11 @@ def test_mocap_player_drives_the_node(tmp_path):
         assert "frames/s" in log.read_text(), log.read_text()  # the per-second figure line
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_signal_while_busy_exits_zero_within_2_s(tmp_path, sig):
-    with arm_node(tmp_path) as (proc, env, log):
+@pytest.mark.parametrize("sig, isolation", [(signal.SIGINT, "thread"),
+                                             (signal.SIGTERM, "thread"),
+                                             (signal.SIGINT, "process")])
+def test_signal_while_busy_exits_zero_within_2_s(tmp_path, sig, isolation):
+    with arm_node(tmp_path, "-p", f"isolation:={isolation}") as (proc, env, log):
         player = subprocess.Popen(
             _command("mocap_player", "skin_node.player") + ["--character", "arm", "--loop"],
             env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
@@ -584,6 +591,10 @@ def test_signal_while_busy_exits_zero_within_2_s(tmp_path, sig):
             proc.send_signal(sig)
             assert proc.wait(5) == 0, log.read_text()
             assert time.monotonic() - t0 < 2.0
+            if isolation == "process":      # its deform process went with it
+                pid = int(log.read_text().split("(deform process ")[1].split(")")[0])
+                assert not os.path.exists(f"/proc/{pid}/exe") or \
+                    open(f"/proc/{pid}/stat").read().split(")")[-1].split()[0] == "Z"
         finally:
             player.send_signal(sig)
             assert player.wait(5) == 0, player.stderr.read()
@@ -672,6 +683,7 @@ def test_skin_bag_interrupted_exits_1_in_order(tmp_path):
     (None, ("-p", "weights:=artist")),           # neither automatic nor file
     (None, ("-p", "weights:=file")),             # the built-in arm has no file weights
     (None, ("-p", "warm_start:=true", "-p", "workers:=2")),  # history needs one worker
+    (None, ("-p", "isolation:=fork")),           # neither thread nor process
 ])
 def test_bad_start_up_is_one_line_and_non_zero(tmp_path, content, args):
     path = tmp_path / "character.yaml"

@@ -5,8 +5,8 @@ Starts the node (the ``skin_node`` console script if on PATH, else
 (``skin_node.ros_domain``: no other live process holds or uses it) with
 ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, waits until it has latched
 ``skin/mesh`` (it does so once set up), then publishes JointState at
-``rate`` Hz from the walk clip for ``seconds`` seconds. Every JointState's
-``header.stamp`` is the send time on this process's clock; the node copies it
+``rate`` Hz from the walk clip (``--clip`` another) for ``seconds`` seconds.
+Every JointState's ``header.stamp`` is the send time on this process's clock; the node copies it
 into ``skin/points``, so latency = receive time - output stamp. Reports p50 /
 p99 latency, outputs vs inputs, the node's ``frames_skipped_stale`` from
 ``skin/diagnostics``, and its exit status on SIGINT (0 when it shut down in order).
@@ -24,6 +24,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import psutil
 
 from ..builtin.characters import BUILTIN_CHARACTERS
 from ..character import load_character
@@ -32,23 +33,31 @@ from ..ros_domain import claim_domain
 
 
 def _rss_mb(pid: int) -> float:
-    """Resident memory of process ``pid`` in MB (NaN where /proc has no answer)."""
+    """Resident memory of process ``pid`` and its children (a deform process
+    of ``isolation:=process``) in MB; NaN where the process is gone."""
     try:
-        with open(f"/proc/{pid}/status") as f:
-            kb = next(int(line.split()[1]) for line in f if line.startswith("VmRSS:"))
-        return kb / 1024.0
-    except (OSError, StopIteration, ValueError):
+        root = psutil.Process(pid)
+        procs = [root, *root.children(recursive=True)]
+    except psutil.Error:
         return float("nan")
+    total = 0
+    for p in procs:
+        try:
+            total += p.memory_info().rss
+        except psutil.Error:
+            pass                        # a child that ended meanwhile holds nothing
+    return total / 2**20
 
 
 def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str = "humanoid",
                     surface_vertices: int = 24000, domain: int | None = None,
                     ready_timeout: float = 300.0, params: list | None = None,
-                    weights: str = "automatic", bvh: str = "") -> dict:
+                    weights: str = "automatic", bvh: str = "", clip: str = "") -> dict:
     """Run the node and measure it; see the module docstring. Returns a dict.
     ``params``: more node parameters as ``name:=value`` (``threads:=2``).
     ``character`` may be a character file (``surface_vertices`` then does not
-    apply); ``bvh``: play this BVH retargeted to it instead of the built-in clip."""
+    apply); ``bvh``: play this BVH retargeted to it instead of the built-in clip,
+    ``clip``: this clip of the character's (``squat``) instead of its first."""
     # deferred: rclpy, the ROS messages and the modules built on them are optional
     # (skin_bench runs without ROS; this one subcommand needs it)
     import rclpy
@@ -64,7 +73,7 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     if domain is None:
         with claim_domain() as claim:           # held until the node is gone
             return measure_latency(seconds, rate, character, surface_vertices, claim.domain,
-                                   ready_timeout, params, weights, bvh)
+                                   ready_timeout, params, weights, bvh, clip)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                PYTHONUNBUFFERED="1")
     os.environ.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
@@ -74,8 +83,8 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
                        progress=False)
     else:
         surface_vertices = 0
-    clip = load_motion(character, bvh=bvh)
-    names, frames = list(clip.channel_names), np.asarray(clip.frames)
+    motion = load_motion(character, clip=clip, bvh=bvh)
+    names, frames = list(motion.channel_names), np.asarray(motion.frames)
     log = tempfile.NamedTemporaryFile("w+", suffix=".log", delete=False)
     extra = [a for p in (params or []) for a in ("-p", p)]
     extra += ["-p", f"surface_vertices:={surface_vertices}"] if builtin else []
@@ -150,7 +159,7 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
         os.unlink(log.name)
     L = np.array(lat) if lat else np.array([np.nan])
     return {"character": character, "surface_vertices": surface_vertices, "weights": weights,
-            "motion": bvh or "built-in", "rate_hz": rate,
+            "motion": bvh or clip or "built-in", "rate_hz": rate,
             "seconds": seconds, "node_ready_s": ready_s, "inputs": sent, "outputs": len(lat),
             "latency_ms_p50": float(np.percentile(L, 50)),
             "latency_ms_p99": float(np.percentile(L, 99)),
@@ -186,6 +195,8 @@ def main(argv: list | None = None) -> int:
                     help="of a built-in character")
     ap.add_argument("--weights", default="automatic", choices=("automatic", "file"))
     ap.add_argument("--bvh", default="", help="play this BVH, retargeted to the character")
+    ap.add_argument("--clip", default="", help="play this clip of the character's "
+                    "(default: its first, the walk for the built-in humanoid)")
     ap.add_argument("--domain", type=int, default=None,
                     help="ROS_DOMAIN_ID (default: a free one of $SKIN_NODE_DOMAINS, else 10-99)")
     ap.add_argument("--out", default="", help="write the result as JSON here")
@@ -197,7 +208,7 @@ def main(argv: list | None = None) -> int:
         ap.error(f"--param takes NAME:=VALUE, got {bad}")
     try:
         res = measure_latency(a.seconds, a.rate, a.character, a.surface_vertices, a.domain,
-                              params=a.param, weights=a.weights, bvh=a.bvh)
+                              params=a.param, weights=a.weights, bvh=a.bvh, clip=a.clip)
     except (OSError, ValueError, RuntimeError) as e:
         print(f"skin_bench ros-latency: error: {e}", file=sys.stderr)
         return 2
