@@ -455,7 +455,8 @@ def test_ros_latency_benchmark_measures_the_node(tmp_path):
     out = tmp_path / "latency.json"
     cmd = _command("skin_bench", "skin_node.bench.cli") + [
         "ros-latency", "--character", "arm", "--surface-vertices", str(ARM_VERTICES),
-        "--seconds", "2", "--rate", "60", "--param", "workers:=2", "--out", str(out)]
+        "--seconds", "2", "--rate", "60", "--param", "workers:=2", "--clip", "wrist_twist",
+        "--out", str(out)]
     res = subprocess.run(cmd, env=_base_env(), cwd=REPO, capture_output=True, text=True,
                          timeout=400)
     assert res.returncode == 0, res.stdout + res.stderr
@@ -464,6 +465,8 @@ def test_ros_latency_benchmark_measures_the_node(tmp_path):
     assert lat["outputs"] + lat["skipped_stale"] == lat["inputs"]
     assert lat["outputs"] >= lat["inputs"] // 2
     assert 0.0 < lat["latency_ms_p50"] <= lat["latency_ms_p99"] < 1000.0
+    assert 0.0 < lat["first_pose_ms"] <= lat["latency_ms_max"]    # the first pose was answered
+    assert lat["motion"] == "wrist_twist" and "first pose" in res.stdout
     assert 50.0 < lat["node_rss_mb"] < 1500.0 and lat["params"] == ["workers:=2"]
     assert "(workers:=2)" in res.stdout
     assert lat["domain_id"] in domain_range()     # claimed by the benchmark itself
