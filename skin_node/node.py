@@ -418,9 +418,15 @@ class SkinNode(Node):
             try:
                 pipe, config = self._configure(pipe, config)
                 self._pipes[w] = pipe
+                restarts = getattr(pipe, "restarts", 0)
                 t0 = time.perf_counter()
                 V = pipe.deform(q)
                 deform_ms = 1e3 * (time.perf_counter() - t0)
+                if getattr(pipe, "restarts", 0) != restarts:
+                    self.get_logger().warning(
+                        f"worker {w}: deform process started again (pid {pipe.pid}, "
+                        f"{pipe.restarts} restart{'s' if pipe.restarts > 1 else ''}); that "
+                        f"frame took {deform_ms:.0f} ms")
                 if not np.all(np.isfinite(V)):
                     V = None
                     self._count_failure()

@@ -605,6 +605,35 @@ def test_signal_while_busy_exits_zero_within_2_s(tmp_path, sig, isolation):
     assert "Traceback" not in log.read_text(), log.read_text()
 
 
+def test_a_killed_deform_process_fails_one_frame_and_is_started_again(tmp_path):
+    """isolation:=process: a worker's child killed mid-run costs the frame it
+    was asked for (counted and logged), the next pose starts it again, and
+    the node goes on publishing and exits 0."""
+    with arm_node(tmp_path, "-p", "isolation:=process") as (proc, env, log):
+        child = int(log.read_text().split("(deform process ")[1].split(")")[0])
+        player = subprocess.Popen(
+            _command("mocap_player", "skin_node.player") + ["--character", "arm", "--loop"],
+            env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            wait_for_log(proc, log, "frames/s", 30.0)
+            os.kill(child, signal.SIGKILL)
+            wait_for_log(proc, log, "deform process started again", 120.0)
+            text = log.read_text()
+            after = text.split("deform process started again")[1]
+            deadline = time.monotonic() + 10.0
+            while "frames/s" not in after and time.monotonic() < deadline:
+                time.sleep(0.2)
+                after = log.read_text().split("deform process started again")[1]
+            assert "frames/s" in after, text         # publishing again
+        finally:
+            stop(player, signal.SIGINT)
+        text = log.read_text()
+        assert text.count("frame failed: RemoteError") == 1, text
+        assert "(status -9)" in text
+        new = int(text.split("started again (pid ")[1].split(",")[0])
+        assert new != child
+
+
 def _wait_for_line(stream, text: str, seconds: float) -> str:
     """Read ``stream`` until a line holds ``text``; returns what was read."""
     seen, deadline = "", time.monotonic() + seconds

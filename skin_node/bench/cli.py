@@ -455,12 +455,14 @@ def report(out: Path, quick: bool = False, ros: bool = True, progress: bool = Tr
     lats = []
     if ros:
         try:
-            # one worker (the node's default) and two (config/humanoid.yaml)
-            for workers in (1, 2):
+            # one worker (the node's default) and two (config/humanoid.yaml) on
+            # the walk, and one on the squat (its deep bends are the slow frames)
+            runs = [(1, ""), (2, "")] + ([] if quick else [(1, "squat")])
+            for workers, clip in runs:
                 lats.append(measure_latency(seconds=5 if quick else 10,
                                             surface_vertices=2000 if quick else 24000,
                                             character="arm" if quick else "humanoid",
-                                            params=[f"workers:={workers}"]))
+                                            params=[f"workers:={workers}"], clip=clip))
             write_json(lats, out / "ros_latency.json")
         except Exception as e:  # noqa: BLE001 - ROS may be missing; the rest still stands
             print(f"skin_bench: ros-latency skipped: {type(e).__name__}: {e}", file=sys.stderr)
