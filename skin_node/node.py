@@ -54,9 +54,9 @@ two cores answer about 1.4 times as many poses as one (the 24k humanoid at
 With ``isolation:=process`` each worker's pipeline lives in a child process
 (:class:`skin_node.remote.RemotePipeline`, fed through shared memory): the
 same skin, bitwise, and a worker that crashes fails one frame and is started
-again. It buys no measurable speed on two cores (the deform is bound by its own work,
-not by the GIL it shares with the executor) and costs a second copy of the
-character in memory, so ``thread`` is the default.
+again. It buys no measurable speed on two cores (the deform is bound by its
+own work, not by the GIL it shares with the executor) and costs a second copy
+of the character in memory, so ``thread`` is the default.
 
 Parameter changes pass the set-parameters callback's checks and take effect
 at the start of the next frame each worker takes; ``character``,

@@ -93,8 +93,9 @@ class RemotePipeline:
         self._n_out = len(character.surface_V)
         self._proc: subprocess.Popen | None = None
         self._conn: Connection | None = None
-        self._fd = _shared_block(8 * (self._n_channels + 3 * self._n_out))
-        self._mm = mmap.mmap(self._fd, 8 * (self._n_channels + 3 * self._n_out))
+        size = 8 * (self._n_channels + 3 * self._n_out)
+        self._fd = _shared_block(size)
+        self._mm = mmap.mmap(self._fd, size)
         self._q, self._V = _views(self._mm, self._n_channels, self._n_out)
         self._ready = False
         self._start()

@@ -6,11 +6,12 @@ Starts the node (the ``skin_node`` console script if on PATH, else
 ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, waits until it has latched
 ``skin/mesh`` (it does so once set up), then publishes JointState at
 ``rate`` Hz from the walk clip (``--clip`` another) for ``seconds`` seconds.
-Every JointState's ``header.stamp`` is the send time on this process's clock; the node copies it
-into ``skin/points``, so latency = receive time - output stamp. Reports p50 /
-p99 latency, the first pose's (sent once the node is ready: whether a cold
-worker answers within a frame), outputs vs inputs, the node's ``frames_skipped_stale`` from
-``skin/diagnostics``, and its exit status on SIGINT (0 when it shut down in order).
+Every JointState's ``header.stamp`` is the send time on this process's clock;
+the node copies it into ``skin/points``, so latency = receive time - output
+stamp. Reports p50 / p99 latency, the first pose's (sent once the node is
+ready: whether a cold worker answers within a frame), outputs vs inputs, the
+node's ``frames_skipped_stale`` from ``skin/diagnostics``, and its exit status
+on SIGINT (0 when it shut down in order).
 """
 from __future__ import annotations
 
@@ -188,7 +189,8 @@ def latency_line(lat: dict) -> str:
         scene += f", {Path(lat['motion']).name}"
     return (f"ROS latency ({scene}, {lat['rate_hz']:.0f} Hz "
             f"for {lat['seconds']:.0f} s): p50 {lat['latency_ms_p50']:.1f} ms, p99 "
-            f"{lat['latency_ms_p99']:.1f} ms, first pose {lat.get('first_pose_ms', np.nan):.1f} ms, "
+            f"{lat['latency_ms_p99']:.1f} ms, "
+            f"first pose {lat.get('first_pose_ms', np.nan):.1f} ms, "
             f"{lat['outputs']} outputs for {lat['inputs']} inputs, "
             f"node skipped {lat['skipped_stale']} as stale"
             + (f", node resident {lat['node_rss_mb']:.0f} MB"
