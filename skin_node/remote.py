@@ -29,7 +29,6 @@ import socket
 import subprocess
 import sys
 import tempfile
-import time
 from multiprocessing.connection import Connection
 
 import numpy as np
