@@ -247,8 +247,8 @@ class SkinNode(Node):
                                           daemon=True) for w in range(workers)]
         for t in self._workers:
             t.start()
-        self.create_subscription(JointState, "joint_states", self._on_joint_state,
-                                 QOS_JOINT_STATES)
+        self._joint_sub = self.create_subscription(JointState, "joint_states",
+                                                   self._on_joint_state, QOS_JOINT_STATES)
         self.create_timer(1.0, self._on_diagnostics_timer)
         ch = self.character
         for line in ch.part_lines():
@@ -496,6 +496,9 @@ class SkinNode(Node):
             "unknown_name_count": len(unknown),
             "time_jumps_back": self._stamps.jumps_back,
             "worker_restarts": sum(getattr(pipe, "restarts", 0) for pipe in self._pipes),
+            # the joint_states publishers this node's subscription has matched
+            # (discovery runs both ways: a publisher may see the node first)
+            "joint_state_publishers": self._joint_sub.get_publisher_count(),
             "parts": ",".join(part.summary() for part in self.character.parts),
             "fps": float(period["frames"]),
             "ms_per_frame": period["deform_ms"] / n,

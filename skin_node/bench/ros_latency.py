@@ -136,7 +136,13 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
                 raise RuntimeError(f"skin_node did not come up:\n{log.read()[-2000:]}")
             time.sleep(0.1)
         ready_s = time.monotonic() - t_setup
-        while pub.get_subscription_count() == 0:
+        # both ends matched: the publisher's count says it sees the node, the
+        # node's diagnostics that the node sees it (until then a pose may come
+        # late, in one burst with the next, and be skipped as stale)
+        while pub.get_subscription_count() == 0 or int(diag.get("joint_state_publishers",
+                                                                 0)) == 0:
+            if proc.poll() is not None or time.monotonic() - t_setup > ready_timeout:
+                raise RuntimeError("skin_node did not match the benchmark's publisher")
             time.sleep(0.05)
         period = 1.0 / rate
         sent = 0
