@@ -198,6 +198,22 @@ def _reach(pf, Minv, b, a, px, py, pz, xb, yb, zb):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
+def _gap(lx, ly, lz, hx, hy, hz, x, y, z):
+    """Distance from point ``(x, y, z)`` to the box ``l``-``h`` (0 inside)."""
+    dx = max(lx - x, x - hx, 0.0)
+    dy = max(ly - y, y - hy, 0.0)
+    dz = max(lz - z, z - hz, 0.0)
+    return math.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _box_gap(box, b, x, y, z):
+    """Distance from rest point ``(x, y, z)`` to part ``b``'s box."""
+    return _gap(box[b, 0, 0], box[b, 0, 1], box[b, 0, 2], box[b, 1, 0], box[b, 1, 1],
+                box[b, 1, 2], x, y, z)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
 def _in_grid(origin, cell, dims, j, x, y, z, pad):
     """Whether rest point ``(x, y, z)`` lies within ``pad`` of part ``j``'s grid."""
     h = cell[j]
@@ -209,7 +225,7 @@ def _in_grid(origin, cell, dims, j, x, y, z, pad):
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, onset, face0, face1,
-                  iterations, only, pre):
+                  iterations, only, pre, clear, reach, apart):
     """The most violated contact constraint of vertex ``i`` of part ``a``
     among parts ``cand[c0:c1]``: (C, gradient x, y, z, the part); C >= 0
     when none is. ``pre[i]`` (6,) gets the rest points the two parts' fields
@@ -225,6 +241,12 @@ def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, onset, fa
     pelvis's at the crotch) still moves with that bone. ``box`` (J, 2, 3):
     each part's posed skin carried back by its bone alone, bounded; skin
     outside another part's box is outside its flesh.
+
+    With all parts tested (``only`` < 0), ``clear[i]`` is lowered to a lower
+    bound of the vertex's distance from the flesh of each part ``b`` with
+    ``apart[a, b]``: the field read, the rigid bound that let it skip the
+    carry, its distance from the part's grid or from its box (grown by
+    ``reach``) plus ``reach``.
     """
     origin, cell, dims, ptr, values = pf[0], pf[1], pf[2], pf[3], pf[4]
     px, py, pz = X[i, 0], X[i, 1], X[i, 2]
@@ -243,8 +265,16 @@ def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, onset, fa
             xb, yb, zb = _to_rest(Minv, b, px, py, pz)
             if not (box[b, 0, 0] <= xb <= box[b, 1, 0] and box[b, 0, 1] <= yb <= box[b, 1, 1]
                     and box[b, 0, 2] <= zb <= box[b, 1, 2]):
+                if apart[a, b]:
+                    clear[i] = min(clear[i], _box_gap(box, b, xb, yb, zb) + reach)
                 continue
             if not _in_grid(origin, cell, dims, b, xb, yb, zb, 0.0):
+                h = cell[b]
+                if apart[a, b]:
+                    clear[i] = min(clear[i], _gap(
+                        origin[b, 0], origin[b, 1], origin[b, 2],
+                        origin[b, 0] + (dims[b, 0] - 1) * h, origin[b, 1] + (dims[b, 1] - 1) * h,
+                        origin[b, 2] + (dims[b, 2] - 1) * h, xb, yb, zb))
                 continue
             # skinning carries b's flesh by a blend of its bone set (without a):
             # the point's preimage lies no further from where b's bone alone puts
@@ -255,13 +285,26 @@ def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, onset, fa
             # distance is within it)
             s_rigid, _, _, _ = field_at(values, ptr, origin, cell, dims, b, xb, yb, zb, False)
             if s_rigid >= FAR:
+                if apart[a, b]:
+                    clear[i] = 0.0
                 continue
             shift = 1.25 * _reach(pf, Minv, b, a, px, py, pz, xb, yb, zb)
             if s_rigid > shift + onset[i] and shift <= REACH * 2.0 * cell[b]:
+                if apart[a, b]:
+                    clear[i] = min(clear[i], s_rigid - shift)
                 continue
             xa, ya, za = rx, ry, rz
         sb, ux, uy, uz, qbx, qby, qbz = skinned_field(pf, Q, b, px, py, pz, xb, yb, zb, n,
                                                       False, a)
+        if only < 0 and apart[a, b]:
+            d = sb
+            if sb >= FAR:
+                # carried out of the grid: at least as far as the grid
+                h = cell[b]
+                d = _gap(origin[b, 0], origin[b, 1], origin[b, 2],
+                         origin[b, 0] + (dims[b, 0] - 1) * h, origin[b, 1] + (dims[b, 1] - 1) * h,
+                         origin[b, 2] + (dims[b, 2] - 1) * h, qbx, qby, qbz)
+            clear[i] = min(clear[i], d)
         if sb >= onset[i]:
             continue
         sa, vx, vy, vz, qax, qay, qaz = skinned_field(pf, Q, a, px, py, pz, xa, ya, za, n,
@@ -309,7 +352,8 @@ def _gated(sb, sa, ux, uy, uz, vx, vy, vz, margin, onset, pf, a, b, rx, ry, rz, 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
 def project_contacts(X, V0, verts, side, cand_ptr, cand, Q, Minv, pf, box, margin, onset,
-                     face0, face1, iterations, steps, moved, plane, hit, recheck, pre):
+                     face0, face1, iterations, steps, moved, plane, hit, recheck, pre, clear,
+                     reach, apart):
     """Project every vertex of ``verts`` out of the other parts' flesh, up to
     ``steps`` Newton steps each (vertices are independent: Jacobi, so they
     run in parallel and the result does not depend on the threads). Parts to
@@ -320,7 +364,11 @@ def project_contacts(X, V0, verts, side, cand_ptr, cand, Q, Minv, pf, box, margi
     half-space (:func:`hold_planes`). With ``recheck`` a vertex that was
     projected out of a part before is tested against that part alone (the
     frame's other parts were tested and were not in contact with it),
-    carried from where it was read last (``pre``, see :func:`worst_contact`)."""
+    carried from where it was read last (``pre``, see :func:`worst_contact`).
+    Wherever a vertex is tested against all its candidates, ``clear[i]`` is
+    lowered to a lower bound of its distance from the flesh of those ``apart``
+    from its part (see :func:`worst_contact`; ``reach``: how far the boxes
+    were grown)."""
     for k in nb.prange(verts.shape[0]):
         i = verts[k]
         a = side[i]
@@ -329,6 +377,7 @@ def project_contacts(X, V0, verts, side, cand_ptr, cand, Q, Minv, pf, box, margi
             continue
         # most skin lies outside every candidate's box: that test alone first
         inside = False
+        gap = np.inf
         for c in range(c0, c1):
             b = cand[c]
             xb, yb, zb = _to_rest(Minv, b, X[i, 0], X[i, 1], X[i, 2])
@@ -336,14 +385,18 @@ def project_contacts(X, V0, verts, side, cand_ptr, cand, Q, Minv, pf, box, margi
                     and box[b, 0, 2] <= zb <= box[b, 1, 2]):
                 inside = True
                 break
+            if apart[a, b]:
+                gap = min(gap, _box_gap(box, b, xb, yb, zb))
         if not inside:
+            clear[i] = min(clear[i], gap + reach)
             continue
         gx = gy = gz = 0.0
         went = False
         only = hit[i] if recheck else -1
         for _ in range(steps):
             C, gx, gy, gz, b = worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box,
-                                             margin, onset, face0, face1, iterations, only, pre)
+                                             margin, onset, face0, face1, iterations, only, pre,
+                                             clear, reach, apart)
             if C >= 0.0:
                 break
             hit[i] = b
@@ -452,7 +505,8 @@ def contact_pairs(X, order, pptr, M, Minv, has, lo, hi, reach, min_angle, box, c
 
 
 @nb.njit(cache=True, nogil=True)
-def boxed_vertices(X, order, pptr, cptr, cand_ptr, cand, Minv, box, out):
+def boxed_vertices(X, order, pptr, cptr, cand_ptr, cand, Minv, box, reach, apart, clear,
+                   out):
     """The vertices that may lie in another part's box (see
     :func:`project_contacts`), found chunk by chunk: ``order`` holds each
     part's vertices (``order[pptr[a]:pptr[a+1]]``) in spatially coherent
@@ -460,7 +514,10 @@ def boxed_vertices(X, order, pptr, cptr, cand_ptr, cand, Minv, box, out):
     carried into each candidate part's rest frame (its eight corners) and
     only where that meets the candidate's box are its vertices kept. The
     boxes bound the vertices, so no vertex that a per-vertex test would keep
-    is dropped. Writes them to ``out``; returns how many."""
+    is dropped. Writes them to ``out``; returns how many. The vertices of a
+    chunk left out get ``clear``: at least how far they are from the flesh of
+    every candidate ``apart`` from their part (the chunk's distance from its
+    box, grown by ``reach``, plus ``reach``)."""
     n = 0
     J = pptr.shape[0] - 1
     c = 0
@@ -479,6 +536,7 @@ def boxed_vertices(X, order, pptr, cptr, cand_ptr, cand, Minv, box, out):
                 ly, hy = min(ly, X[i, 1]), max(hy, X[i, 1])
                 lz, hz = min(lz, X[i, 2]), max(hz, X[i, 2])
             keep = False
+            gap = np.inf
             for e in range(c0, c1):
                 b = cand[e]
                 blx = bly = blz = np.inf
@@ -493,8 +551,17 @@ def boxed_vertices(X, order, pptr, cptr, cand_ptr, cand, Minv, box, out):
                         and bhy >= box[b, 0, 1] and blz <= box[b, 1, 2] and bhz >= box[b, 0, 2]):
                     keep = True
                     break
+                if not apart[a, b]:
+                    continue
+                dx = max(blx - box[b, 1, 0], box[b, 0, 0] - bhx, 0.0)
+                dy = max(bly - box[b, 1, 1], box[b, 0, 1] - bhy, 0.0)
+                dz = max(blz - box[b, 1, 2], box[b, 0, 2] - bhz, 0.0)
+                gap = min(gap, math.sqrt(dx * dx + dy * dy + dz * dz))
             if keep:
                 for q in range(q0, q1):
                     out[n] = order[q]
                     n += 1
+            else:
+                for q in range(q0, q1):
+                    clear[order[q]] = gap + reach
     return n

@@ -167,6 +167,47 @@ def envelope_clamp(X, verts, seg, r0, hold, A, B, limit, before):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
+def _hold(X, i, sx, sy, sz, cap):
+    """Vertex ``i`` drawn back to within ``cap`` of ``(sx, sy, sz)`` along
+    its move from there: 1 if it was, else 0."""
+    dx, dy, dz = X[i, 0] - sx, X[i, 1] - sy, X[i, 2] - sz
+    d = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if d <= cap:
+        return 0
+    t = cap / d
+    X[i, 0] = sx + t * dx
+    X[i, 1] = sy + t * dy
+    X[i, 2] = sz + t * dz
+    return 1
+
+
+@nb.njit(cache=True, nogil=True)
+def clearance_caps(clear, resolved, share, out):
+    """``out[i]``: how far skin may move near another part's, ``share`` of
+    its clearance ``clear[i]`` (0 where negative), over ``resolved[i]`` (inf
+    where the skin is too coarse, 0, or nothing is near)."""
+    for i in range(clear.shape[0]):
+        if resolved[i] <= 0.0 or clear[i] == np.inf:
+            out[i] = np.inf
+        else:
+            out[i] = share * max(clear[i], 0.0) / resolved[i]
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def hold_clear(X, verts, start, cap):
+    """Every vertex ``i`` of ``verts`` further than ``cap[i]`` from where it
+    started (``start`` (n, 3)) drawn back to that distance along its move
+    (inf: no limit). Returns how many were."""
+    n = 0
+    for k in range(verts.shape[0]):
+        i = verts[k]
+        if cap[i] < np.inf:
+            n += _hold(X, i, start[i, 0], start[i, 1], start[i, 2], cap[i])
+    return n
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
 def smoothstep(x):
     """0 below 0, 1 above 1, ``3x^2 - 2x^3`` between."""
     x = min(max(x, 0.0), 1.0)
@@ -175,7 +216,7 @@ def smoothstep(x):
 
 @nb.njit(cache=True, nogil=True)
 def keep_region_volume(X, F, tris, c, inc_ptr, inc, verts, mob, free, seg, r0, hold, A, B,
-                       limit, vol0, cap, g, room, share):
+                       limit, vol0, cap, start, near, fade, g, room, share):
     """One joint region's volume back to ``vol0`` (the cone from ``c`` over
     its triangles ``tris``, :func:`cone_volume_gradient`), by even layers
     along the volume's gradient: up to four within the bulge limit's
@@ -185,7 +226,10 @@ def keep_region_volume(X, F, tris, c, inc_ptr, inc, verts, mob, free, seg, r0, h
     (len(verts),) is each vertex's share of a layer; where the region is
     short it is also scaled by ``free`` (n,): skin in contact may sink into
     its own flesh, not swell into the other's. Layers move skin both ways
-    (contact pushes skin out as well as in), by at most ``cap``. ``g``
+    (contact pushes skin out as well as in), by at most ``cap``; no vertex
+    ``i`` ends further than ``near[i]`` from ``start[i]`` (skin near another
+    part's, :func:`hold_clear`): its share fades to none over the last
+    ``fade[i]`` of that. ``g``
     (len(verts), 3), ``room`` and ``share`` (len(verts),) are scratch.
     Returns the region's volume at the end."""
     vol = cone_volume_gradient(X, F, tris, c, inc_ptr, inc, verts, g)
@@ -207,6 +251,10 @@ def keep_region_volume(X, F, tris, c, inc_ptr, inc, verts, mob, free, seg, r0, h
                 m *= free[i]
                 if within:
                     m *= smoothstep(room[k] / max(0.5 * limit * r0[i, 0], 1e-12))
+            if near[i] < np.inf:
+                d = math.sqrt((X[i, 0] - start[i, 0]) ** 2 + (X[i, 1] - start[i, 1]) ** 2
+                              + (X[i, 2] - start[i, 2]) ** 2)
+                m *= smoothstep((near[i] - d) / max(fade[i], 1e-12))
             share[k] = m
             den += m * math.sqrt(g[k, 0] ** 2 + g[k, 1] ** 2 + g[k, 2] ** 2)
         if den <= 0.0:
@@ -221,6 +269,8 @@ def keep_region_volume(X, F, tris, c, inc_ptr, inc, verts, mob, free, seg, r0, h
             X[i, 0] += step * g[k, 0] / a
             X[i, 1] += step * g[k, 1] / a
             X[i, 2] += step * g[k, 2] / a
+            if near[i] < np.inf:
+                _hold(X, i, start[i, 0], start[i, 1], start[i, 2], near[i])
         vol = cone_volume_gradient(X, F, tris, c, inc_ptr, inc, verts, g)
     return vol
 

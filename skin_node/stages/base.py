@@ -43,6 +43,14 @@ class Frame:
     touched : list of int arrays
         Surface vertices the collision stage moved (skin in contact), so later
         stages leave them where they are.
+    clearance : (n,) float or None
+        Set by the contact stage: at least how far each surface vertex was
+        from the flesh of the parts it tests against the vertex's own and that
+        meet it at no joint, when it tested them (inf where there are none),
+        so later stages do not swell skin into another part's; None without a
+        contact stage. (Parts turned less than ``active_threshold`` from each
+        other since rest are not tested: the contact takes them to be as far
+        apart as at rest.)
     memo : dict
         Values of the pose alone that several stages need (posed bone
         segments of a joint region, say), computed once per frame.
@@ -64,6 +72,7 @@ class Frame:
     unskinned: object = None
     counts: dict = field(default_factory=dict)
     touched: list = field(default_factory=list)
+    clearance: np.ndarray | None = None
     memo: dict = field(default_factory=dict)
 
 

@@ -58,7 +58,10 @@ class Contact(Stage):
     exact projection holds the margin, and ``contact_settle`` passes of the
     smoothing with the tangent planes held spread its steps.
     Which bones meet does not matter: an elbow folding, a heel against a
-    thigh, an arm against the chest are the same test.
+    thigh, an arm against the chest are the same test. On the way it notes
+    how far each vertex is from the parts that meet its own at no joint
+    (:attr:`~skin_node.stages.base.Frame.clearance`), so the stages after it
+    do not swell skin into theirs.
     """
 
     name = "contact"
@@ -94,7 +97,21 @@ class Contact(Stage):
         self._plane = np.zeros((n, 6))
         self._hit = np.full(n, -1, dtype=np.int64)
         self._pre = np.zeros((n, 6))
+        self._clear = np.empty(n)
+        # parts that meet at no joint: the clearance this stage reports is
+        # from their flesh (a joint's own crease is its inflation's business)
+        parents = character.skeleton.parents
+        self._apart = ~np.eye(J, dtype=np.bool_)
+        for j in range(J):
+            if parents[j] >= 0:
+                self._apart[j, parents[j]] = self._apart[parents[j], j] = False
         self._J = J
+
+    def _reach(self) -> float:
+        """How far the parts' boxes are grown: contact starts within ``onset``
+        of a part's flesh; an edge more covers the flesh's field against the
+        skin it was built from."""
+        return self._edge_max + float(self.params["contact_onset"]) * self._sag_max
 
     def pairs(self, fr: Frame):
         """The part pairs to test this frame (:func:`~skin_node.kernels.contact.contact_pairs`):
@@ -103,9 +120,7 @@ class Contact(Stage):
         J = self._J
         M = np.ascontiguousarray(fr.M)
         Minv = np.ascontiguousarray(np.linalg.inv(M))
-        # contact starts within ``onset`` of a part's flesh; an edge more
-        # covers the flesh's field against the skin it was built from
-        reach = self._edge_max + float(self.params["contact_onset"]) * self._sag_max
+        reach = self._reach()
         box = np.empty((J, 2, 3))
         cand_ptr = np.empty(J + 1, dtype=np.int64)
         cand = np.empty(J * J, dtype=np.int64)
@@ -122,8 +137,15 @@ class Contact(Stage):
         parts = np.flatnonzero(np.diff(cand_ptr))
         verts = np.concatenate([self._order[self._pptr[a]:self._pptr[a + 1]] for a in parts])
         X = fr.surface
+        # at least how far each vertex is from the other parts' flesh (the
+        # tests below lower it; inf where no part is a candidate)
+        clear = self._clear
+        clear[:] = np.inf
+        fr.clearance = clear
+        reach = self._reach()
         first = self._boxed[:boxed_vertices(X, self._order, self._pptr, self._cptr, cand_ptr,
-                                            cand, Minv, box, self._boxed)]
+                                            cand, Minv, box, reach, self._apart, clear,
+                                            self._boxed)]
         X0 = X.copy()
         Q = matrices_to_dual_quaternions(fr.M)
         margin = float(self.params["contact_margin"]) * self._edge
@@ -138,7 +160,8 @@ class Contact(Stage):
         passes = int(self.params["contact_smoothing"])
         plane, hit = self._plane, self._hit
         hit[verts] = -1
-        project_contacts(X, self.V0, first, *args, moved, plane, hit, False, self._pre)
+        project_contacts(X, self.V0, first, *args, moved, plane, hit, False, self._pre, clear,
+                         reach, self._apart)
         if not moved.any():
             fr.counts["contact_vertices"] = 0
             return
@@ -161,7 +184,7 @@ class Contact(Stage):
             laplacian_smooth(X, X0, True, ring, loc, lptr, lnbr, lw, 0.5, passes, L, buf)
             if (r + 1) % exact == 0 or r == rounds - 1:
                 project_contacts(X, self.V0, near, *args, moved, plane, hit, True,
-                                 self._pre)
+                                 self._pre, clear, reach, self._apart)
             else:
                 hold_planes(X, zone, moved, plane)
         settle = int(self.params["contact_settle"])

@@ -6,15 +6,9 @@ import numpy as np
 from ..kernels.smoothing import (gather_weights, laplacian_smooth,
                                  restore_detail, ring_layout, vertex_faces)
 from ..kernels.topology import ring_distance
+from ..kernels.shape import clearance_caps, hold_clear
 from .base import Frame, Stage
-from ..rigging.weights import point_segment_distance
-
-#: Edges across a limb's radius (skin to bone at rest) below which the mush
-#: fades out, from none to full: smoothing over a few rings of a coarse limb
-#: reaches across the whole joint, cuts the bend's corner and loses the
-#: joint's volume (CesiumMan's 40 mm edges around 40 mm limbs: a fifth of the
-#: shoulder's region), where a few rings of a fine one round the crease alone.
-RESOLUTION = (2.0, 3.5)
+from .shape import CLEAR_SHARE
 
 
 class Mush(Stage):
@@ -30,7 +24,10 @@ class Mush(Stage):
     rigidly comes out unchanged, so only what the contact bent is touched:
     the vertices it moved and ``mush_rings`` rings around them, ``mush_passes``
     weighted Laplacian passes, the zone's border held. Skin too coarse for
-    that to stay local (:data:`RESOLUTION`) is left alone.
+    that to stay local (:attr:`~skin_node.Character.resolved`: CesiumMan's
+    40 mm edges around 40 mm limbs, where smoothing a few rings reaches across
+    the joint, cuts the bend's corner and loses a fifth of the shoulder
+    region's volume) is left alone.
     """
 
     name = "mush"
@@ -50,13 +47,11 @@ class Mush(Stage):
         self._first = np.where(has, self._adj[np.minimum(self._ptr[:-1], len(self._adj) - 1)],
                                np.arange(n)).astype(np.int64)
         self._SX, self._SV = np.empty((n, 3)), np.empty((n, 3))
-        sj, A, B = character.skeleton.bone_segments()
-        radius = point_segment_distance(self.V0, A, B).min(axis=1) if len(A) else np.zeros(n)
-        x = np.clip((radius / np.maximum(character.mean_edges, 1e-12) - RESOLUTION[0])
-                    / (RESOLUTION[1] - RESOLUTION[0]), 0.0, 1.0)
         #: how much of the mush each vertex takes (0 where its limb is too coarse)
-        self.resolved = x * x * (3.0 - 2.0 * x)
+        self.resolved = character.resolved
         self._fade = np.zeros(n)
+        # the mush fades itself out on coarse skin: it holds all it moves
+        self._whole, self._near = np.ones(n), np.empty(n)
         self._hops = np.full(n, 1 << 30, dtype=np.int64)
         self._queue = np.empty(n, dtype=np.int64)
 
@@ -79,7 +74,17 @@ class Mush(Stage):
         laplacian_smooth(SX, SX, False, ring, loc, lptr, lnbr, lw, 0.5, passes, L, buf)
         laplacian_smooth(SV, SV, False, ring, loc, lptr, lnbr, lw, 0.5, passes, L, buf)
         self._fade[zone] = self.resolved[zone]
+        start = X.copy() if fr.clearance is not None else None
         restore_detail(X, self.V0, SX, SV, zone, self.F, self._vf_ptr, self._vf, self._first,
                        self._fade)
         self._fade[zone] = 0.0
+        if start is not None:
+            # the rest detail comes back round where the contact flattened
+            # skin against a part that meets its own at no joint (a forearm
+            # across the chest, a shin against the other): there, skin moves
+            # no more than inflation may (skin the contact moved out of that
+            # part's flesh, not at all)
+            fr.counts["mush_held"] = hold_clear(
+                X, zone, start, clearance_caps(fr.clearance, self._whole, CLEAR_SHARE,
+                                               self._near))
         fr.counts["mush_vertices"] = len(zone)

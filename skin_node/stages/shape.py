@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels.shape import (cone_volume_gradient, enclosed_volume, envelope_clamp,
-                             envelope_room, keep_region_volume, limit_bulge, pull_bulge,
-                             region_incidence, split_fade)
+                             clearance_caps, envelope_room, hold_clear, keep_region_volume,
+                             limit_bulge, pull_bulge, region_incidence, split_fade)
 from ..kernels.smoothing import gather_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from .base import Frame, KeyedCache, Stage
@@ -115,6 +115,13 @@ class Bulge(Stage):
             limit_bulge(X, verts, self.seg, fr.seg_A, fr.seg_B, fade, allowed)
 
 
+#: How far inflation may move skin near another part's, as a share of its
+#: clearance from that part's flesh (:attr:`~skin_node.stages.base.Frame.clearance`):
+#: half, as the other part's skin may swell towards it as far. (Contact keeps
+#: skin out of the other parts' rest flesh, not out of their swollen skin.)
+CLEAR_SHARE = 0.5
+
+
 class Inflate(Stage):
     """Each bent joint's region keeps its rest volume, and the whole mesh its
     own within ``inflate_slack``.
@@ -189,12 +196,31 @@ class Inflate(Stage):
         self._queue = np.empty(n, dtype=np.int64)
         self._ptr, self._adj = r.adj_ptr, r.adj
         self._w_adj = character.edge_weights
+        self._edge = character.mean_edges
+        self._far = np.full(len(V), np.inf)
+        self._near = np.empty(len(V))
+        self._resolved = character.resolved
         self.V0 = V
 
     def __call__(self, fr: Frame) -> None:
         js = [j for j in np.flatnonzero(fr.bent) if len(self.verts[j])]
         if not js:
             return
+        X = fr.surface
+        # skin near another part's (that meets its own at no joint) moves at
+        # most CLEAR_SHARE of its clearance, its share of the layers fading
+        # out over the last mean edge of that: a forearm along the chest
+        # stayed out of the chest's flesh while the chest swelled through it
+        if fr.clearance is not None:
+            # (not on coarse skin, whose joint has no other skin to take its
+            # volume: CesiumMan's shoulder region kept 0.77 of it, not 0.99)
+            start = X.copy()
+            near = clearance_caps(fr.clearance, self._resolved, CLEAR_SHARE, self._near)
+        else:
+            start, near = X, self._far
+        self._inflate(fr, js, start, near)
+
+    def _inflate(self, fr: Frame, js: list, start: np.ndarray, near: np.ndarray) -> None:
         X = fr.surface
         H = int(self.params["inflate_rings"])
         free = np.ones(len(X))
@@ -206,7 +232,7 @@ class Inflate(Stage):
             free[q] = x * x * (3.0 - 2.0 * x)
             self._hops[q] = 1 << 30
         if float(self.params["inflate_slack"]) < 1.0:
-            self._whole(fr, free)
+            self._whole(fr, free, start, near)
         worst = 1.0
         cap = float(self.params["inflate_max"])
         limit = float(self.params["bulge_limit"])
@@ -216,7 +242,8 @@ class Inflate(Stage):
             vol = keep_region_volume(X, self.F, self.tris[j], fr.G[j, :3, 3], *self.inc[j], v,
                                      self.mob[j] * fr.fade[j], free, self.seg, self.r0,
                                      self.hold, fr.seg_A, fr.seg_B, limit, self.vol0[j],
-                                     cap * self.radius[j], g, room, share)
+                                     cap * self.radius[j], start, near, self._edge, g, room,
+                                     share)
             worst = min(worst, vol / self.vol0[j])
         fr.counts["region_volume_min"] = worst
 
@@ -250,7 +277,7 @@ class Inflate(Stage):
                     gather_weights(v, self._ptr, self._w_adj, lay[2]))
         return self._zones.get(bent.tobytes(), make)
 
-    def _whole(self, fr: Frame, free: np.ndarray) -> None:
+    def _whole(self, fr: Frame, free: np.ndarray, start: np.ndarray, near: np.ndarray) -> None:
         """The whole mesh's volume back to within ``inflate_slack`` of rest,
         from the skin the bent joints blend (regions included: the regions
         are set right after), evenly."""
@@ -275,7 +302,7 @@ class Inflate(Stage):
         # within the bulge limit's envelope first, the layer smoothed (it
         # thins where the envelope or contact holds skin: gradually, not in a
         # step), then what smoothing and the envelope left out, past it
-        deficit = self._layer(fr, v, t, inc, m, target, deficit, lim, 3, True)
+        deficit = self._layer(fr, v, t, inc, m, target, deficit, lim, 3, True, start, near)
         passes = int(self.params["inflate_smoothing"])
         if passes:
             laplacian_smooth(X, base, True, ring, loc, lptr, lnbr, lw, 0.5, passes,
@@ -285,15 +312,21 @@ class Inflate(Stage):
                 # take that back (the layers past it come after, evenly)
                 envelope_clamp(X, v, self.seg, self.r0, self.hold, fr.seg_A, fr.seg_B,
                                float(self.params["bulge_limit"]), base[v])
+            if near is not self._far:
+                # and onto skin near another part's
+                hold_clear(X, v, start, near)
             deficit = target - enclosed_volume(X, self.F)
             if (deficit > 0.0) != (target < self.mesh_vol0):
                 return
-        self._layer(fr, v, t, inc, m, target, deficit, lim, 2, False)
+        self._layer(fr, v, t, inc, m, target, deficit, lim, 2, False, start, near)
 
-    def _layer(self, fr, v, t, inc, m, target, deficit, lim, steps, within):
+    def _layer(self, fr, v, t, inc, m, target, deficit, lim, steps, within, start, near):
         """Up to ``steps`` even layers over ``v`` (mobility ``m``) towards the
         mesh volume ``target``, within the bulge limit's envelope when
-        ``within`` and the mesh is short; returns the deficit left."""
+        ``within`` and the mesh is short, and within ``near`` of ``start``
+        (:func:`~skin_node.kernels.shape.hold_clear`), the share fading over
+        the last mean edge of it; returns the deficit left."""
+        held = near is not self._far
         X = fr.surface
         g = np.empty((len(v), 3))
         for _ in range(steps):
@@ -304,6 +337,11 @@ class Inflate(Stage):
             env = within and deficit > 0.0
             room = self._room(X, v, fr) if env else None
             mm = m * self._give(room, v) if env else m
+            if held:
+                # skin as far from its start as it may be takes no more
+                x = np.clip((near[v] - np.linalg.norm(X[v] - start[v], axis=1))
+                            / np.maximum(self._edge[v], 1e-12), 0.0, 1.0)
+                mm = mm * (x * x * (3.0 - 2.0 * x))
             den = float((mm * a).sum())
             if den <= 0.0:
                 break
@@ -311,6 +349,8 @@ class Inflate(Stage):
             if env:
                 step = np.minimum(step, room)
             X[v] += step[:, None] * (g / np.maximum(a, 1e-30)[:, None])
+            if held:
+                hold_clear(X, v, start, near)
             deficit = target - enclosed_volume(X, self.F)
             if (deficit > 0.0) != (target < self.mesh_vol0):
                 break
