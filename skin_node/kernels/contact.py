@@ -214,6 +214,15 @@ def _box_gap(box, b, x, y, z):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
+def _grid_gap(origin, cell, dims, j, x, y, z):
+    """Distance from rest point ``(x, y, z)`` to part ``j``'s grid (0 inside)."""
+    h = cell[j]
+    return _gap(origin[j, 0], origin[j, 1], origin[j, 2], origin[j, 0] + (dims[j, 0] - 1) * h,
+                origin[j, 1] + (dims[j, 1] - 1) * h, origin[j, 2] + (dims[j, 2] - 1) * h,
+                x, y, z)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
 def _in_grid(origin, cell, dims, j, x, y, z, pad):
     """Whether rest point ``(x, y, z)`` lies within ``pad`` of part ``j``'s grid."""
     h = cell[j]
@@ -269,12 +278,8 @@ def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, onset, fa
                     clear[i] = min(clear[i], _box_gap(box, b, xb, yb, zb) + reach)
                 continue
             if not _in_grid(origin, cell, dims, b, xb, yb, zb, 0.0):
-                h = cell[b]
                 if apart[a, b]:
-                    clear[i] = min(clear[i], _gap(
-                        origin[b, 0], origin[b, 1], origin[b, 2],
-                        origin[b, 0] + (dims[b, 0] - 1) * h, origin[b, 1] + (dims[b, 1] - 1) * h,
-                        origin[b, 2] + (dims[b, 2] - 1) * h, xb, yb, zb))
+                    clear[i] = min(clear[i], _grid_gap(origin, cell, dims, b, xb, yb, zb))
                 continue
             # skinning carries b's flesh by a blend of its bone set (without a):
             # the point's preimage lies no further from where b's bone alone puts
@@ -297,14 +302,9 @@ def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, onset, fa
         sb, ux, uy, uz, qbx, qby, qbz = skinned_field(pf, Q, b, px, py, pz, xb, yb, zb, n,
                                                       False, a)
         if only < 0 and apart[a, b]:
-            d = sb
-            if sb >= FAR:
-                # carried out of the grid: at least as far as the grid
-                h = cell[b]
-                d = _gap(origin[b, 0], origin[b, 1], origin[b, 2],
-                         origin[b, 0] + (dims[b, 0] - 1) * h, origin[b, 1] + (dims[b, 1] - 1) * h,
-                         origin[b, 2] + (dims[b, 2] - 1) * h, qbx, qby, qbz)
-            clear[i] = min(clear[i], d)
+            # carried out of the grid: at least as far as the grid
+            clear[i] = min(clear[i], sb if sb < FAR else
+                           _grid_gap(origin, cell, dims, b, qbx, qby, qbz))
         if sb >= onset[i]:
             continue
         sa, vx, vy, vz, qax, qay, qaz = skinned_field(pf, Q, a, px, py, pz, xa, ya, za, n,

@@ -50,8 +50,9 @@ class Mush(Stage):
         #: how much of the mush each vertex takes (0 where its limb is too coarse)
         self.resolved = character.resolved
         self._fade = np.zeros(n)
-        # the mush fades itself out on coarse skin: it holds all it moves
-        self._whole, self._near = np.ones(n), np.empty(n)
+        # the mush fades itself out on coarse skin, so its hold is not scaled
+        # by resolution as inflation's is (clearance_caps' resolved: ones)
+        self._unscaled, self._near = np.ones(n), np.empty(n)
         self._hops = np.full(n, 1 << 30, dtype=np.int64)
         self._queue = np.empty(n, dtype=np.int64)
 
@@ -85,6 +86,6 @@ class Mush(Stage):
             # no more than inflation may (skin the contact moved out of that
             # part's flesh, not at all)
             fr.counts["mush_held"] = hold_clear(
-                X, zone, start, clearance_caps(fr.clearance, self._whole, CLEAR_SHARE,
+                X, zone, start, clearance_caps(fr.clearance, self._unscaled, CLEAR_SHARE,
                                                self._near))
         fr.counts["mush_vertices"] = len(zone)
