@@ -483,6 +483,69 @@ def test_skin_near_another_part_does_not_swell_into_it(humanoid):
     assert fr.counts["mush_held"] > 0
 
 
+#: Legs that part: a high kick (the left hip flexed 110 degrees) and the side
+#: splits (each leg out 52 degrees). No built-in clip or tuning pose does either.
+PARTING = {"kick": dict(l_hip_ry=-1.9, l_knee_ry=0.3),
+           "splits": dict(l_hip_rx=0.9, r_hip_rx=-0.9)}
+
+
+@pytest.mark.parametrize("pose", sorted(PARTING))
+def test_skin_between_parting_legs_spans_them_without_crumpling(humanoid, pose):
+    """The crotch's skin is about as near either thigh's bone, and the bulge
+    limit held it to both: as the legs part it cannot stay near both, and
+    held to each it crumpled (6 and 3 sharp folds where DQS has none, 22 at
+    the bulge stage of the kick). Loosened by how far the bones parted, it
+    spans the gap: no sharp fold, no intersecting pair, roughness within 8%
+    of DQS's, and the bulge stage alone adds no fold either."""
+    ch = humanoid
+    q = ch.pose(**PARTING[pose])
+    si, sq = SelfIntersections(ch.V, ch.F, 0.0), SurfaceQuality(ch.V, ch.F)
+    dqs = Pipeline.preset(ch, "dqs").deform(q).copy()
+    X = Pipeline.preset(ch, "default").deform(q).copy()
+    bulged = Pipeline(ch, ["dqs", "bulge"]).deform(q).copy()
+    d, o = sq(dqs), sq(X)
+    assert d["folds90"] == 0 and o["folds90"] == 0, (d, o)
+    assert sq(bulged)["folds90"] == 0, sq(bulged)
+    assert len(si.pairs(X)) == 0
+    assert o["roughness"] <= 1.08 * d["roughness"], (o, d)
+
+
+def test_the_bulge_limit_loosens_by_how_far_the_bones_parted(humanoid):
+    """What the bulge limit loosens by (the bones' parting around a vertex)
+    is 0 at rest and wherever the body moved rigidly (a root turn and shift);
+    at the splits it is, at the crotch, of the order of how far the thighs'
+    points near it parted; folding an elbow to 150 degrees (bones that meet
+    at a joint close on each other) gives its skin none."""
+    from skin_node.kernels.shape import parting
+    from skin_node.stages.shape import Bulge
+    ch = humanoid
+    pipe = Pipeline(ch, ["dqs", "bulge"])
+    pairs = next(s for s in pipe.stages if isinstance(s, Bulge)).pairs
+    verts = np.arange(len(ch.V), dtype=np.int64)
+
+    def parted(**channels):
+        pipe.deform(ch.pose(**channels))
+        fr = pipe.last_frame
+        return parting(np.empty(len(verts)), verts, *pairs, fr.seg_A, fr.seg_B)
+
+    assert np.abs(parted()).max() < 1e-9
+    assert np.abs(parted(root_tx=0.3, root_ty=-0.2, pelvis_rz=1.1, pelvis_rx=0.4)).max() < 1e-9
+    skel = ch.skeleton
+    at = {n: skel.rest_positions[skel.index(n)] for n in ("l_hip", "r_hip", "l_knee", "l_elbow")}
+    # the crotch: between the thighs (within 3 cm of the middle), below the hips
+    crotch = np.flatnonzero((np.abs(ch.V[:, 1] - 0.5 * (at["l_hip"][1] + at["r_hip"][1])) < 0.03)
+                            & (ch.V[:, 2] < at["l_hip"][2]) & (ch.V[:, 2] > at["l_knee"][2]))
+    assert len(crotch) > 10
+    s = parted(l_hip_rx=0.9, r_hip_rx=-0.9)[crotch]
+    # each leg swings out 0.9 rad about its hip: a point a tenth of the thigh
+    # down moves 0.1 * thigh * 2 sin(0.45) sideways, a point at the knee ten times that
+    thigh = float(np.linalg.norm(at["l_knee"] - at["l_hip"]))
+    swing = 2.0 * np.sin(0.45) * thigh
+    assert 0.1 * swing < s.max() < 2.0 * swing, (s.max(), swing)
+    near = np.linalg.norm(ch.V - at["l_elbow"], axis=1) < 0.08
+    assert parted(l_elbow_rz=-2.6)[near].max() < 1e-9
+
+
 # ------------------------------------------------------------------ kernels
 def test_mesh_tree_queries_agree_with_brute_force():
     m = trimesh.creation.icosphere(3, radius=0.1)

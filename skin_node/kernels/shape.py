@@ -25,22 +25,150 @@ ROUNDS = 1
 NO_LIMIT = 1e30
 
 
+#: Segments further than this many times a vertex's nearest one (at rest)
+#: do not count towards its :func:`parting_pairs`: the weights fall smoothly
+#: to 0 there (the limits' own hold ends at 1.3; the parting must reach
+#: further, or the skin keeps a ridge where a pair leaves).
+PARTING_REACH = 3.0
+#: At most this many of a vertex's nearest segments pair up (a hand's
+#: fingers would give dozens; the humanoid has up to 14 within
+#: :data:`PARTING_REACH`, CesiumMan too). Where more are within reach, a
+#: pair can leave before its weight is 0: with 4 the kick's crotch kept a
+#: ridge there; 5, 6 and 8 give it the same skin (to 1e-12 m).
+PARTING_MOST = 6
+
+
+@nb.njit(cache=True, nogil=True)
+def _parting_pairs(V, A, B, seg_joint, reach, most, ptr, fill, pa, pb, ta, tb, sep0, pw):
+    """:func:`parting_pairs`, counting (``fill`` False: ``ptr[i + 1]`` the
+    count of vertex ``i``) or filling its rows from ``ptr``."""
+    S = A.shape[0]
+    dist, t = np.empty(S), np.empty(S)
+    for i in range(V.shape[0]):
+        d0 = 1e300
+        for g in range(S):
+            dx, dy, dz = B[g, 0] - A[g, 0], B[g, 1] - A[g, 1], B[g, 2] - A[g, 2]
+            d2 = dx * dx + dy * dy + dz * dz
+            u = ((V[i, 0] - A[g, 0]) * dx + (V[i, 1] - A[g, 1]) * dy
+                 + (V[i, 2] - A[g, 2]) * dz) / max(d2, 1e-30)
+            u = min(1.0, max(0.0, u))
+            t[g] = u
+            dist[g] = math.sqrt((V[i, 0] - A[g, 0] - u * dx) ** 2 + (V[i, 1] - A[g, 1] - u * dy) ** 2
+                                + (V[i, 2] - A[g, 2] - u * dz) ** 2)
+            d0 = min(d0, dist[g])
+        order = np.argsort(dist)[:most]
+        q = ptr[i] if fill else 0
+        for m in range(order.shape[0]):
+            a = order[m]
+            na = _reach_weight(dist[a], d0, reach)
+            if na <= 0.0:
+                break
+            for m2 in range(m + 1, order.shape[0]):
+                b = order[m2]
+                nb_ = _reach_weight(dist[b], d0, reach)
+                if nb_ <= 0.0:
+                    break
+                if seg_joint[a] == seg_joint[b]:
+                    continue
+                if fill:
+                    pa[q], pb[q], ta[q], tb[q] = a, b, t[a], t[b]
+                    x = 0.0
+                    for c in range(3):
+                        x += ((A[a, c] + t[a] * (B[a, c] - A[a, c]))
+                              - (A[b, c] + t[b] * (B[b, c] - A[b, c]))) ** 2
+                    sep0[q] = math.sqrt(x)
+                    pw[q] = na * nb_
+                q += 1
+        if not fill:
+            ptr[i + 1] = q
+
+
 @nb.njit(cache=True, nogil=True, inline="always")
-def _allow(X, i, seg, r0, hold, A, B, width, fade, allowed):
+def _reach_weight(d, d0, reach):
+    """1 for a vertex's nearest segment (at ``d0``), falling smoothly to 0 at
+    ``reach`` times its distance."""
+    x = min(1.0, max(0.0, 1.0 - (d - d0) / max((reach - 1.0) * d0, 1e-9)))
+    return x * x * (3.0 - 2.0 * x)
+
+
+def parting_pairs(V, A, B, seg_joint, reach=PARTING_REACH, most=PARTING_MOST):
+    """For every vertex of the rest skin ``V``, the pairs of its nearest bone
+    segments (rest ``A``-``B``; up to ``most``, within ``reach`` times the
+    nearest's distance; on two different bones ``seg_joint``) whose parting
+    :func:`pull_bulge` reads: a CSR ``(ptr (n+1,), pa, pb, ta, tb, sep0, w)``,
+    each pair's segments, where along each the vertex's closest point lies,
+    those points' rest distance, and how much the pair counts (the product
+    of both segments' nearness, smooth in the vertex's position)."""
+    V = np.ascontiguousarray(V, dtype=np.float64)
+    A, B = np.ascontiguousarray(A, dtype=np.float64), np.ascontiguousarray(B, dtype=np.float64)
+    seg_joint = np.ascontiguousarray(seg_joint, dtype=np.int64)
+    ptr = np.zeros(len(V) + 1, dtype=np.int64)
+    none_i, none_f = np.zeros(0, np.int64), np.zeros(0)
+    _parting_pairs(V, A, B, seg_joint, float(reach), int(most), ptr, False, none_i, none_i,
+                   none_f, none_f, none_f, none_f)
+    ptr = np.cumsum(ptr)
+    m = int(ptr[-1])
+    pa, pb = np.empty(m, np.int64), np.empty(m, np.int64)
+    ta, tb, sep0, w = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+    _parting_pairs(V, A, B, seg_joint, float(reach), int(most), ptr, True, pa, pb, ta, tb, sep0, w)
+    return ptr, pa, pb, ta, tb, sep0, w
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _parting(i, ptr, pa, pb, ta, tb, sep0, pw, A, B):
+    """How much further apart than at rest vertex ``i``'s nearest bones now
+    hold it (:func:`parting_pairs`; posed segments ``A``-``B``): the largest
+    growth of the distance between two of their points nearest it at rest,
+    weighted; 0 if none grew."""
+    grow = 0.0
+    for q in range(ptr[i], ptr[i + 1]):
+        a, b, u, v = pa[q], pb[q], ta[q], tb[q]
+        x = (A[a, 0] + u * (B[a, 0] - A[a, 0])) - (A[b, 0] + v * (B[b, 0] - A[b, 0]))
+        y = (A[a, 1] + u * (B[a, 1] - A[a, 1])) - (A[b, 1] + v * (B[b, 1] - A[b, 1]))
+        z = (A[a, 2] + u * (B[a, 2] - A[a, 2])) - (A[b, 2] + v * (B[b, 2] - A[b, 2]))
+        g = (math.sqrt(x * x + y * y + z * z) - sep0[q]) * pw[q]
+        if g > grow:
+            grow = g
+    return grow
+
+
+@nb.njit(cache=True, nogil=True)
+def parting(out, verts, ptr, pa, pb, ta, tb, sep0, pw, A, B):
+    """``out[k]``: the bones' parting around vertex ``verts[k]`` (what
+    :func:`pull_bulge` loosens its limits by), for tests and pictures."""
+    for k in range(verts.shape[0]):
+        out[k] = _parting(verts[k], ptr, pa, pb, ta, tb, sep0, pw, A, B)
+    return out
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _allow(X, i, seg, r0, hold, A, B, width, fade, pairs, allowed):
     """:func:`pull_bulge`'s limits of vertex ``i``."""
     for s in range(seg.shape[1]):
         allowed[i, s] = NO_LIMIT
     if fade[i] <= 0.0:
         return
     px, py, pz = X[i, 0], X[i, 1], X[i, 2]
+    out = False
+    for s in range(seg.shape[1]):
+        if hold[i, s] > 0.0:
+            cx, cy, cz = _closest_on_segment(px, py, pz, A, B, seg[i, s])
+            if math.sqrt((px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2) > r0[i, s]:
+                out = True
+                break
+    if not out:
+        # within its rest distance of every segment: no limit applies, and
+        # the parting (which only loosens them) need not be read
+        return
+    d = _parting(i, pairs[0], pairs[1], pairs[2], pairs[3], pairs[4], pairs[5], pairs[6], A, B)
     for s in range(seg.shape[1]):
         if hold[i, s] <= 0.0:
             continue
         w = width[i] / hold[i, s]
         cx, cy, cz = _closest_on_segment(px, py, pz, A, B, seg[i, s])
-        e = math.sqrt((px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2) - r0[i, s]
+        e = math.sqrt((px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2) - r0[i, s] - d
         if e > 0.0:
-            allowed[i, s] = r0[i, s] + w * math.tanh(e / w)
+            allowed[i, s] = r0[i, s] + d + w * math.tanh(e / w)
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -86,7 +214,7 @@ def limit_bulge(X, verts, seg, A, B, fade, allowed):
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
-def pull_bulge(X, verts, seg, r0, hold, A, B, width, fade, allowed):
+def pull_bulge(X, verts, seg, r0, hold, A, B, width, fade, pairs, allowed):
     """Every vertex of ``verts`` drawn within how far from each of its
     nearest bone segments it may stand, from where skinning put it (``X``).
 
@@ -101,6 +229,11 @@ def pull_bulge(X, verts, seg, r0, hold, A, B, width, fade, allowed):
     further. So a limit comes and goes smoothly wherever the order of the
     nearest segments changes, and skin about as near several (the buttocks,
     between the pelvis's bones and a thigh's) is held by each in full.
+    All of a vertex's limits loosen by how far its nearest bones parted
+    since rest (``pairs``, :func:`parting_pairs`): skin spanning two limbs
+    that part (the crotch as the legs spread or one kicks) cannot keep its
+    rest distance from both, and held to each it crumpled. Bones that meet
+    at a joint part little near it, so a bent joint's bulge keeps its limit.
     Writes ``allowed[i]`` (n, k): the distances, :data:`NO_LIMIT` where none
     applies (and for vertices whose ``fade`` is 0), then projects onto them as
     :func:`limit_bulge` does, in the same pass (each vertex's limits depend on
@@ -109,7 +242,7 @@ def pull_bulge(X, verts, seg, r0, hold, A, B, width, fade, allowed):
     n = 0
     for k in nb.prange(verts.shape[0]):
         i = verts[k]
-        _allow(X, i, seg, r0, hold, A, B, width, fade, allowed)
+        _allow(X, i, seg, r0, hold, A, B, width, fade, pairs, allowed)
         n += _limit(X, i, seg, A, B, fade, allowed)
     return n
 

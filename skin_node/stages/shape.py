@@ -6,7 +6,8 @@ import numpy as np
 
 from ..kernels.shape import (cone_volume_gradient, enclosed_volume, envelope_clamp,
                              clearance_caps, envelope_room, hold_clear, keep_region_volume,
-                             limit_bulge, pull_bulge, region_incidence, split_fade)
+                             limit_bulge, parting_pairs, pull_bulge, region_incidence,
+                             split_fade)
 from ..kernels.smoothing import gather_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from .base import Frame, KeyedCache, Stage
@@ -43,7 +44,11 @@ class Bulge(Stage):
     than at rest is drawn back to at most ``bulge_limit`` times its rest
     distance out, skin nearer than at rest is left as it is. Skin about as
     near several bones (where its nearest bone changes) is held within the
-    limits of each at once (:attr:`~skin_node.Character.nearest_segments`). Only skin whose
+    limits of each at once (:attr:`~skin_node.Character.nearest_segments`),
+    loosened by how far its nearest bones parted since rest
+    (:func:`~skin_node.kernels.shape.parting_pairs`): skin spanning two limbs
+    that part (the crotch in a kick, a lunge or the splits) spans the gap
+    as under DQS; held to both it crumpled. Only skin whose
     weights a bent joint splits is drawn in (where skinning blends, and so
     bulges), fading in where the smaller side's weight rises from 0.25% to 1.3%
     (fading in over the first tenth leaves the 150-degree elbow's outer skin
@@ -76,6 +81,8 @@ class Bulge(Stage):
         self._w_adj = character.edge_weights
         self._sets = KeyedCache()
         self._width = (None, None)
+        seg_joint, A, B = skel.bone_segments()
+        self.pairs = parting_pairs(V, A, B, seg_joint)
 
     def _set(self, bent: np.ndarray):
         """The skin the bent joints split, its ring layout and edge weights."""
@@ -102,7 +109,7 @@ class Bulge(Stage):
         base = X.copy()
         allowed = self._allowed
         n = pull_bulge(X, verts, self.seg, self.r0, self.hold, fr.seg_A, fr.seg_B,
-                       self._width[1], fade, allowed)
+                       self._width[1], fade, self.pairs, allowed)
         fr.counts["bulge_vertices"] = n
         passes = int(self.params["bulge_smoothing"])
         if n and passes:
