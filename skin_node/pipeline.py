@@ -20,16 +20,18 @@ from .stages.pbd import PBD
 from .stages.shape import Bulge, Inflate
 from .stages.skinning import DQS, LBS
 from .stages.smooth import Smooth
+from .stages.untangle import Untangle
 from .stages.volume import Volume
 
-STAGES = {s.name: s for s in (LBS, DQS, PBD, Bulge, Inflate, Contact, Mush, Collision,
-                               Smooth, Volume)}
+STAGES = {s.name: s for s in (LBS, DQS, PBD, Bulge, Inflate, Contact, Mush, Untangle,
+                               Collision, Smooth, Volume)}
 STAGE_NAMES = tuple(STAGES)
 
 #: Our default: DQS start (no candy wrapper) with smooth weights, the bulge
-#: drawn in, skin kept out of other parts' flesh, the volume given back, and
+#: drawn in, skin kept out of other parts' flesh, coarse skin's triangles that
+#: still pass through another part's pushed apart, the volume given back, and
 #: the crease the contact leaves rounded with the rest skin's detail kept.
-DEFAULT_STAGES = ("dqs", "bulge", "contact", "inflate", "mush")
+DEFAULT_STAGES = ("dqs", "bulge", "contact", "untangle", "inflate", "mush")
 
 #: Named stage lists with the parameters that make them what they are.
 PRESETS = {
@@ -115,6 +117,15 @@ PIPELINE_PARAMS = {
                             "the mush smooths"),
     "mush_passes": ParamSpec(int, 8, 0, 100, "Laplacian passes of the mush over the posed "
                              "skin (its rest detail comes back; 0 leaves it alone)"),
+    "untangle_rounds": ParamSpec(int, 6, 0, 50, "rounds of pushing apart coarse skin's "
+                                 "triangles that pass through another part's"),
+    "untangle_gap": ParamSpec(float, 0.05, 0.0, 1.0, "how far in front of the other "
+                              "triangle's plane the untangle puts a corner, in mean edges"),
+    "untangle_depth": ParamSpec(float, 0.5, 0.0, 5.0, "corners further than this behind the "
+                                "other triangle's plane are left to the contact, in mean "
+                                "edges"),
+    "untangle_reach": ParamSpec(float, 2.0, 0.0, 20.0, "coarse skin this near another part's "
+                                "flesh is tested, in mean edges"),
     "bulge_limit": ParamSpec(float, 0.1, 0.001, 2.0, "the most skin stands out from its bone "
                              "beyond its rest distance, in rest distances"),
     "bulge_smoothing": ParamSpec(int, 2, 0, 100, "Laplacian passes over the bulge limit's "
