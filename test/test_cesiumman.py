@@ -180,8 +180,8 @@ def test_untangle_parts_coarse_triangles_without_crumpling(characters, motions, 
     12th frame), coarse triangles cross between vertices the contact keeps
     apart. The untangle pushes such pairs apart: the exact intersecting
     pairs fall to at most 60% of what the default leaves without it, and
-    at most a fifth of DQS's (measured: 1,079 -> 252 of DQS's 4,873 on
-    automatic weights, 1,549 -> 810 of 5,295 on the file's). Its rule is
+    at most a fifth of DQS's (measured: 1,079 -> 240 of DQS's 4,873 on
+    automatic weights, 1,549 -> 796 of 5,295 on the file's). Its rule is
     that same exact test, so the count alone does not grade it: sharp folds
     rise by at most 15% (66 -> 75; the file's 337 -> 315), roughness by at
     most 1%, and the whole mesh keeps its volume within 0.5% of what it had

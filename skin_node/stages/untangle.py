@@ -30,7 +30,11 @@ class Untangle(Stage):
     ``untangle_depth`` mean edges, go to ``untangle_gap`` mean edges in
     front of it, half the way each, for up to ``untangle_rounds`` rounds
     while pairs remain and each round leaves fewer (a round that does not is
-    taken back). Skin near no contact, or fine, is not tested.
+    taken back). Skin near no contact, or fine, is not tested. The vertices
+    it moved join the frame's skin in contact
+    (:attr:`~skin_node.stages.base.Frame.touched`), so inflation does not
+    swell them back through (the punch on automatic weights kept 1,089
+    pairs instead of 639).
 
     The exact test is the one that counts the intersecting pairs
     :mod:`skin_node.bench` reports, so those counts do not grade this stage
@@ -120,6 +124,7 @@ class Untangle(Stage):
         gap = float(self.params["untangle_gap"]) * self._edge
         depth = float(self.params["untangle_depth"]) * self._edge
         self._inq[query] = True
+        parted = []
         P = self._pairs(X, query, self._inq, True)
         fr.counts["untangle_pairs"] += len(P)
         for _ in range(int(self.params["untangle_rounds"])):
@@ -137,5 +142,8 @@ class Untangle(Stage):
                 X[:] = before
                 break
             fr.counts["untangle_moves"] += moved
+            parted.append(self._touched[:moved].copy())
             P = after
         self._inq[query] = False
+        if parted:
+            fr.touched.append(np.unique(np.concatenate(parted)))
