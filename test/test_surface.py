@@ -493,8 +493,8 @@ PARTING = {"kick": dict(l_hip_ry=-1.9, l_knee_ry=0.3),
 def test_skin_between_parting_legs_spans_them_without_crumpling(humanoid, pose):
     """The crotch's skin is about as near either thigh's bone, and the bulge
     limit held it to both: as the legs part it cannot stay near both, and
-    held to each it crumpled (6 and 3 sharp folds where DQS has none, 22 at
-    the bulge stage of the kick). Loosened by how far the bones parted, it
+    held to each it crumpled (6 and 3 sharp folds where DQS has none; 12 at
+    the kick after the bulge stage alone). Loosened by how far the bones parted, it
     spans the gap: no sharp fold, no intersecting pair, roughness within 8%
     of DQS's, and the bulge stage alone adds no fold either."""
     ch = humanoid
