@@ -74,6 +74,17 @@ def triangles_intersect(X, i0, i1, i2, j0, j1, j2):
     return s0 <= t1 and t0 <= s1
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def meets_apart(X, F, i0, i1, i2, g):
+    """Whether triangle ``g`` of ``F`` shares no corner with triangle
+    ``X[i0, i1, i2]`` and meets it (:func:`triangles_intersect`)."""
+    j0, j1, j2 = F[g, 0], F[g, 1], F[g, 2]
+    if (i0 == j0 or i0 == j1 or i0 == j2 or i1 == j0 or i1 == j1 or i1 == j2
+            or i2 == j0 or i2 == j1 or i2 == j2):
+        return False
+    return triangles_intersect(X, i0, i1, i2, j0, j1, j2)
+
+
 @nb.njit(cache=True, nogil=True)
 def intersecting_pairs(X, F, tris, roots, child, first, count, slot, lo, hi, tlo, thi, out):
     """Pairs of triangles of ``tris`` (rows of ``F``) that intersect in ``X``
@@ -109,11 +120,7 @@ def intersecting_pairs(X, F, tris, roots, child, first, count, slot, lo, hi, tlo
                             or thi[q, 1] < tlo[s, 1] or tlo[q, 2] > thi[s, 2]
                             or thi[q, 2] < tlo[s, 2]):
                         continue
-                    j0, j1, j2 = F[g, 0], F[g, 1], F[g, 2]
-                    if (i0 == j0 or i0 == j1 or i0 == j2 or i1 == j0 or i1 == j1 or i1 == j2
-                            or i2 == j0 or i2 == j1 or i2 == j2):
-                        continue
-                    if triangles_intersect(X, i0, i1, i2, j0, j1, j2):
+                    if meets_apart(X, F, i0, i1, i2, g):
                         if n < out.shape[0]:
                             out[n, 0], out[n, 1] = f, g
                         n += 1

@@ -6,7 +6,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .intersect import triangles_intersect
+from .intersect import meets_apart
 
 
 @nb.njit(cache=True, nogil=True)
@@ -51,11 +51,7 @@ def crossing_pairs(X, F, query, inq, fpart, roots, child, first, count, slot, tr
                     if (tlo[q, 0] > bh0 or thi[q, 0] < bl0 or tlo[q, 1] > bh1
                             or thi[q, 1] < bl1 or tlo[q, 2] > bh2 or thi[q, 2] < bl2):
                         continue
-                    j0, j1, j2 = F[g, 0], F[g, 1], F[g, 2]
-                    if (i0 == j0 or i0 == j1 or i0 == j2 or i1 == j0 or i1 == j1 or i1 == j2
-                            or i2 == j0 or i2 == j1 or i2 == j2):
-                        continue
-                    if triangles_intersect(X, i0, i1, i2, j0, j1, j2):
+                    if meets_apart(X, F, i0, i1, i2, g):
                         if n < out.shape[0]:
                             out[n, 0], out[n, 1] = f, g
                         n += 1
