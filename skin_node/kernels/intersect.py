@@ -86,18 +86,28 @@ def meets_apart(X, F, i0, i1, i2, g):
 
 
 @nb.njit(cache=True, nogil=True)
-def intersecting_pairs(X, F, tris, roots, child, first, count, slot, lo, hi, tlo, thi, out):
-    """Pairs of triangles of ``tris`` (rows of ``F``) that intersect in ``X``
-    and share no corner, each once, found through their bounding-volume tree
-    (:func:`~skin_node.kernels.collision.triangle_trees`, boxes fit to ``X``).
-    Writes up to len(out) pairs (face ids, lower first) into ``out``; returns
-    how many there are."""
+def crossing_pairs(X, F, query, inq, fpart, roots, child, first, count, slot, tris, lo, hi,
+                   tlo, thi, out):
+    """Pairs of triangles that intersect in ``X`` (exactly), one of them from
+    ``query``, of two different parts (``fpart``) and sharing no corner, each
+    once, found through a bounding-volume tree over all of them
+    (:func:`~skin_node.kernels.collision.triangle_trees` over ``tris``,
+    boxes fit to ``X``); ``inq[f]`` marks the query triangles (a pair of two
+    is written from its lower one's side). Every triangle a query and its
+    own part: all intersecting pairs, lower first. Writes up to len(out)
+    pairs (face ids) into ``out``; returns how many there are."""
     n = 0
     stack = np.empty(128, dtype=np.int64)
-    for s in range(slot.shape[0]):
-        f = tris[slot[s]]
+    for k in range(query.shape[0]):
+        f = query[k]
         i0, i1, i2 = F[f, 0], F[f, 1], F[f, 2]
-        for r in range(2):
+        bl0 = min(X[i0, 0], X[i1, 0], X[i2, 0])
+        bl1 = min(X[i0, 1], X[i1, 1], X[i2, 1])
+        bl2 = min(X[i0, 2], X[i1, 2], X[i2, 2])
+        bh0 = max(X[i0, 0], X[i1, 0], X[i2, 0])
+        bh1 = max(X[i0, 1], X[i1, 1], X[i2, 1])
+        bh2 = max(X[i0, 2], X[i1, 2], X[i2, 2])
+        for r in range(roots.shape[0]):
             if roots[r] < 0:
                 continue
             stack[0] = roots[r]
@@ -105,8 +115,8 @@ def intersecting_pairs(X, F, tris, roots, child, first, count, slot, lo, hi, tlo
             while top > 0:
                 top -= 1
                 nd = stack[top]
-                if (lo[nd, 0] > thi[s, 0] or hi[nd, 0] < tlo[s, 0] or lo[nd, 1] > thi[s, 1]
-                        or hi[nd, 1] < tlo[s, 1] or lo[nd, 2] > thi[s, 2] or hi[nd, 2] < tlo[s, 2]):
+                if (lo[nd, 0] > bh0 or hi[nd, 0] < bl0 or lo[nd, 1] > bh1 or hi[nd, 1] < bl1
+                        or lo[nd, 2] > bh2 or hi[nd, 2] < bl2):
                     continue
                 if child[nd, 0] >= 0:
                     stack[top], stack[top + 1] = child[nd, 0], child[nd, 1]
@@ -114,11 +124,10 @@ def intersecting_pairs(X, F, tris, roots, child, first, count, slot, lo, hi, tlo
                     continue
                 for q in range(first[nd], first[nd] + count[nd]):
                     g = tris[slot[q]]
-                    if g <= f:
+                    if fpart[g] == fpart[f] or (inq[g] and g < f):
                         continue
-                    if (tlo[q, 0] > thi[s, 0] or thi[q, 0] < tlo[s, 0] or tlo[q, 1] > thi[s, 1]
-                            or thi[q, 1] < tlo[s, 1] or tlo[q, 2] > thi[s, 2]
-                            or thi[q, 2] < tlo[s, 2]):
+                    if (tlo[q, 0] > bh0 or thi[q, 0] < bl0 or tlo[q, 1] > bh1
+                            or thi[q, 1] < bl1 or tlo[q, 2] > bh2 or thi[q, 2] < bl2):
                         continue
                     if meets_apart(X, F, i0, i1, i2, g):
                         if n < out.shape[0]:
@@ -144,6 +153,8 @@ class SelfIntersections:
     def __init__(self, V0: np.ndarray, F: np.ndarray, apart: float) -> None:
         self.F = np.ascontiguousarray(F, dtype=np.int64)
         self.tris = np.arange(len(F), dtype=np.int64)
+        # every triangle a query, and a part of its own (crossing_pairs)
+        self._every = np.ones(len(F), dtype=np.bool_)
         self.tree = triangle_trees(V0, self.F, self.tris, np.zeros(len(F), dtype=np.int64))
         self.fit = tree_fit(self.tree)
         self.centre0 = V0[self.F].mean(axis=1)
@@ -157,8 +168,8 @@ class SelfIntersections:
         t = self.tree
         lo, hi, tlo, thi, _ = self.fit
         while True:
-            n = intersecting_pairs(X, self.F, self.tris, t.roots, t.child, t.first, t.count,
-                                   t.slot, lo, hi, tlo, thi, self._out)
+            n = crossing_pairs(X, self.F, self.tris, self._every, self.tris, t.roots, t.child,
+                               t.first, t.count, t.slot, self.tris, lo, hi, tlo, thi, self._out)
             if n <= len(self._out):
                 return self._out[:n].copy()
             self._out = np.empty((2 * n, 2), dtype=np.int64)

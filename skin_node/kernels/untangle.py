@@ -4,58 +4,6 @@ from __future__ import annotations
 import math
 
 import numba as nb
-import numpy as np
-
-from .intersect import meets_apart
-
-
-@nb.njit(cache=True, nogil=True)
-def crossing_pairs(X, F, query, inq, fpart, roots, child, first, count, slot, tris, lo, hi,
-                   tlo, thi, out):
-    """Pairs of intersecting triangles (exactly), one of them from ``query``,
-    of two different parts (``fpart``) and sharing no corner, each once,
-    found through a tree over all of them (boxes fit to ``X``, see
-    :func:`~skin_node.kernels.intersect.intersecting_pairs`); ``inq[f]``
-    marks the query triangles. Writes up to len(out) pairs; returns how many
-    there are."""
-    n = 0
-    stack = np.empty(128, dtype=np.int64)
-    for k in range(query.shape[0]):
-        f = query[k]
-        i0, i1, i2 = F[f, 0], F[f, 1], F[f, 2]
-        bl0 = min(X[i0, 0], X[i1, 0], X[i2, 0])
-        bl1 = min(X[i0, 1], X[i1, 1], X[i2, 1])
-        bl2 = min(X[i0, 2], X[i1, 2], X[i2, 2])
-        bh0 = max(X[i0, 0], X[i1, 0], X[i2, 0])
-        bh1 = max(X[i0, 1], X[i1, 1], X[i2, 1])
-        bh2 = max(X[i0, 2], X[i1, 2], X[i2, 2])
-        for r in range(roots.shape[0]):
-            if roots[r] < 0:
-                continue
-            stack[0] = roots[r]
-            top = 1
-            while top > 0:
-                top -= 1
-                nd = stack[top]
-                if (lo[nd, 0] > bh0 or hi[nd, 0] < bl0 or lo[nd, 1] > bh1 or hi[nd, 1] < bl1
-                        or lo[nd, 2] > bh2 or hi[nd, 2] < bl2):
-                    continue
-                if child[nd, 0] >= 0:
-                    stack[top], stack[top + 1] = child[nd, 0], child[nd, 1]
-                    top += 2
-                    continue
-                for q in range(first[nd], first[nd] + count[nd]):
-                    g = tris[slot[q]]
-                    if fpart[g] == fpart[f] or (inq[g] and g < f):
-                        continue
-                    if (tlo[q, 0] > bh0 or thi[q, 0] < bl0 or tlo[q, 1] > bh1
-                            or thi[q, 1] < bl1 or tlo[q, 2] > bh2 or thi[q, 2] < bl2):
-                        continue
-                    if meets_apart(X, F, i0, i1, i2, g):
-                        if n < out.shape[0]:
-                            out[n, 0], out[n, 1] = f, g
-                        n += 1
-    return n
 
 
 @nb.njit(cache=True, nogil=True)

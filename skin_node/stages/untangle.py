@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels.collision import fit_tree, tree_fit, triangle_trees
+from ..kernels.collision import fit_tree
+from ..kernels.intersect import SelfIntersections, crossing_pairs
 from ..kernels.smoothing import vertex_faces
-from ..kernels.untangle import crossing_pairs, push_apart
+from ..kernels.untangle import push_apart
 from .base import Frame, Stage
 
 
@@ -24,7 +25,7 @@ class Untangle(Stage):
     contact moved, or within ``untangle_reach`` mean edges of another
     part's flesh: :attr:`~skin_node.stages.base.Frame.clearance`) are
     tested exactly against every triangle of another part
-    (:func:`~skin_node.kernels.untangle.crossing_pairs`), and the pairs that
+    (:func:`~skin_node.kernels.intersect.crossing_pairs`), and the pairs that
     meet are parted (:func:`~skin_node.kernels.untangle.push_apart`): each
     triangle's corners behind the other's plane, by less than
     ``untangle_depth`` mean edges, go to ``untangle_gap`` mean edges in
@@ -60,12 +61,11 @@ class Untangle(Stage):
                            if np.any(part == j) else False for j in range(J)])
         self.coarse = np.flatnonzero(coarse[self.fpart])
         self._edge = character.mean_edges
+        # the tree over every triangle that the pair counts search too
+        self._si = SelfIntersections(V, F, 0.0) if len(self.coarse) else None
+        if self._si is None:
+            return          # nothing coarse: the stage tests nothing
         n, m = len(V), len(F)
-        self._tree = self._fit = None
-        self._tris = np.arange(m, dtype=np.int64)
-        if len(self.coarse):
-            self._tree = triangle_trees(V, F, self._tris, np.zeros(m, dtype=np.int64))
-            self._fit = tree_fit(self._tree)
         self._inq = np.zeros(m, dtype=np.bool_)
         self._in2 = np.zeros(m, dtype=np.bool_)
         self._vf_ptr, self._vf = vertex_faces(F, n)
@@ -87,14 +87,15 @@ class Untangle(Stage):
     def _pairs(self, X: np.ndarray, query: np.ndarray, inq: np.ndarray,
                full: bool) -> np.ndarray:
         """The pairs with a triangle of ``query`` (marked in ``inq``), see
-        :func:`~skin_node.kernels.untangle.crossing_pairs`; ``full`` refits
+        :func:`~skin_node.kernels.intersect.crossing_pairs`; ``full`` refits
         every box, else only those a moved corner grows."""
-        t = self._tree
-        fit_tree(X, t, self._fit, full)
-        lo, hi, tlo, thi, _ = self._fit
+        si = self._si
+        t = si.tree
+        fit_tree(X, t, si.fit, full)
+        lo, hi, tlo, thi, _ = si.fit
         while True:
             n = crossing_pairs(X, self.F, query, inq, self.fpart, t.roots, t.child,
-                               t.first, t.count, t.slot, self._tris, lo, hi,
+                               t.first, t.count, t.slot, si.tris, lo, hi,
                                tlo, thi, self._out)
             if n <= len(self._out):
                 return self._out[:n].copy()
@@ -114,7 +115,7 @@ class Untangle(Stage):
         return np.concatenate([stand, new])
 
     def __call__(self, fr: Frame) -> None:
-        if self._tree is None:
+        if self._si is None:
             return
         query = self._query(fr)
         fr.counts["untangle_pairs"] = fr.counts["untangle_moves"] = 0
