@@ -45,8 +45,9 @@ def lbs_rows(V, Widx, Wval, M, rows, out):
 
 
 @nb.njit(cache=True, nogil=True, inline="always", fastmath=FAST)
-def _dqs_point(V, Widx, Wval, Q, out, i):
-    """:func:`dqs` of point ``i`` (the one body both loops inline)."""
+def _dq_blend(Widx, Wval, Q, i):
+    """Point ``i``'s blended unit dual quaternion as its rotation's unit
+    quaternion (w, x, y, z) and its translation (tx, ty, tz)."""
     K = Widx.shape[1]
     j0 = Widx[i, 0]
     b0 = b1 = b2 = b3 = b4 = b5 = b6 = b7 = 0.0
@@ -70,18 +71,28 @@ def _dqs_point(V, Widx, Wval, Q, out, i):
     inv = 1.0 / np.sqrt(b0 * b0 + b1 * b1 + b2 * b2 + b3 * b3)
     w0, x0, y0, z0 = b0 * inv, b1 * inv, b2 * inv, b3 * inv
     we, xe, ye, ze = b4 * inv, b5 * inv, b6 * inv, b7 * inv
-    # rotation of v by the real part
-    vx, vy, vz = V[i, 0], V[i, 1], V[i, 2]
-    tx = 2.0 * (y0 * vz - z0 * vy)
-    ty = 2.0 * (z0 * vx - x0 * vz)
-    tz = 2.0 * (x0 * vy - y0 * vx)
-    rx = vx + w0 * tx + (y0 * tz - z0 * ty)
-    ry = vy + w0 * ty + (z0 * tx - x0 * tz)
-    rz = vz + w0 * tz + (x0 * ty - y0 * tx)
     # translation t = 2 * dual * conj(real)
     px = 2.0 * (-we * x0 + xe * w0 - ye * z0 + ze * y0)
     py = 2.0 * (-we * y0 + ye * w0 - ze * x0 + xe * z0)
     pz = 2.0 * (-we * z0 + ze * w0 - xe * y0 + ye * x0)
+    return w0, x0, y0, z0, px, py, pz
+
+
+@nb.njit(cache=True, nogil=True, inline="always", fastmath=FAST)
+def _turn(w0, x0, y0, z0, vx, vy, vz):
+    """Vector ``v`` rotated by unit quaternion ``(w0, x0, y0, z0)``."""
+    tx = 2.0 * (y0 * vz - z0 * vy)
+    ty = 2.0 * (z0 * vx - x0 * vz)
+    tz = 2.0 * (x0 * vy - y0 * vx)
+    return (vx + w0 * tx + (y0 * tz - z0 * ty), vy + w0 * ty + (z0 * tx - x0 * tz),
+            vz + w0 * tz + (x0 * ty - y0 * tx))
+
+
+@nb.njit(cache=True, nogil=True, inline="always", fastmath=FAST)
+def _dqs_point(V, Widx, Wval, Q, out, i):
+    """:func:`dqs` of point ``i`` (the one body both loops inline)."""
+    w0, x0, y0, z0, px, py, pz = _dq_blend(Widx, Wval, Q, i)
+    rx, ry, rz = _turn(w0, x0, y0, z0, V[i, 0], V[i, 1], V[i, 2])
     out[i, 0], out[i, 1], out[i, 2] = rx + px, ry + py, rz + pz
 
 
@@ -102,6 +113,32 @@ def dqs_rows(V, Widx, Wval, Q, rows, out):
     """:func:`dqs` of the points ``rows`` only; the rest of ``out`` is left alone."""
     for k in nb.prange(rows.shape[0]):
         _dqs_point(V, Widx, Wval, Q, out, rows[k])
+
+
+@nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
+def dqs_carry(V, Widx, Wval, Q, C, D, a, b, out):
+    """:func:`dqs` plus each point's offset ``a C_i + b D_i`` ((n, 3) each)
+    turned by the point's own blended rotation: ``out_i = DQS_i + R_i (a C_i
+    + b D_i)``; offsets :func:`dqs_offsets` took out of a skin at other poses,
+    carried to this one."""
+    for i in nb.prange(Widx.shape[0]):
+        w0, x0, y0, z0, px, py, pz = _dq_blend(Widx, Wval, Q, i)
+        rx, ry, rz = _turn(w0, x0, y0, z0, V[i, 0], V[i, 1], V[i, 2])
+        cx, cy, cz = _turn(w0, x0, y0, z0, a * C[i, 0] + b * D[i, 0],
+                           a * C[i, 1] + b * D[i, 1], a * C[i, 2] + b * D[i, 2])
+        out[i, 0], out[i, 1], out[i, 2] = rx + px + cx, ry + py + cy, rz + pz + cz
+
+
+@nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
+def dqs_offsets(V, Widx, Wval, Q, Y, C):
+    """How far skin ``Y`` (n, 3) lies from :func:`dqs`'s, in each point's own
+    blended frame: ``C_i = R_i^T (Y_i - DQS_i)``, so that :func:`dqs_carry`
+    at the same pose (``a`` = 1, ``b`` = 0) gives ``Y`` back."""
+    for i in nb.prange(Widx.shape[0]):
+        w0, x0, y0, z0, px, py, pz = _dq_blend(Widx, Wval, Q, i)
+        rx, ry, rz = _turn(w0, x0, y0, z0, V[i, 0], V[i, 1], V[i, 2])
+        C[i, 0], C[i, 1], C[i, 2] = _turn(w0, -x0, -y0, -z0, Y[i, 0] - rx - px,
+                                          Y[i, 1] - ry - py, Y[i, 2] - rz - pz)
 
 
 @nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
