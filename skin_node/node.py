@@ -58,10 +58,19 @@ again. It buys no measurable speed on two cores (the deform is bound by its
 own work, not by the GIL it shares with the executor) and costs a second copy
 of the character in memory, so ``thread`` is the default.
 
+With ``correction:=carried`` (config/humanoid.yaml) the one worker answers
+each pose at once, at about DQS's cost, with DQS plus the newest correction
+a solver behind it has finished (:class:`skin_node.async_pipeline.AsyncPipeline`;
+in a thread, or with ``isolation:=process`` in a child process): the pose is
+exact, the correction a few poses old (diagnostics ``correction_lag_mean``
+and ``_max``). At 120 Hz through ROS it answers nearly every pose where
+``inline`` (each pose solved before it is published, the default, exact and
+what bag processing wants) answers about two thirds.
+
 Parameter changes pass the set-parameters callback's checks and take effect
 at the start of the next frame each worker takes; ``character``,
-``surface_vertices``, ``name_map``, ``weights``, ``workers``, ``isolation``
-and ``joint_names`` are read-only.
+``surface_vertices``, ``name_map``, ``weights``, ``workers``, ``isolation``,
+``correction`` and ``joint_names`` are read-only.
 """
 from __future__ import annotations
 
@@ -89,6 +98,7 @@ import skin_node
 from msg_adapters import (TIME_JUMP_TOLERANCE_S, ChannelMapper, JointStateError, Reason,
                           StampOrder, diagnostic_array, joint_state_to_arrays, load_name_map,
                           mesh_to_msg, triangle_list_marker_cdr, vertices_to_point_cloud2)
+from skin_node.async_pipeline import AsyncPipeline
 from skin_node.kernels.threads import allow_concurrent_calls, check_concurrent_calls
 from skin_node.processes import build, init_ros, spin_until_shutdown
 from skin_node.remote import RemoteError, RemotePipeline
@@ -165,6 +175,13 @@ class SkinNode(Node):
                              "would carry the history of only the frames it took)")
         if p("isolation") not in ("process", "thread"):
             raise ValueError(f"isolation must be 'process' or 'thread', got {p('isolation')!r}")
+        carried = self._carried = p("correction") == "carried"
+        if p("correction") not in ("carried", "inline"):
+            raise ValueError(f"correction must be 'carried' or 'inline', got "
+                             f"{p('correction')!r}")
+        if carried and workers > 1:
+            raise ValueError(f"correction:=carried answers each pose in about DQS's time on "
+                             f"one worker: workers:=1, not {workers}")
         n, spec, weights = p("surface_vertices"), p("character"), p("weights")
         try:
             self.character = skin_node.load_character(
@@ -194,6 +211,10 @@ class SkinNode(Node):
                 self._pipes = [RemotePipeline(self.character, load, stages, wait=False, **kwargs)
                                for _ in range(workers)]
                 warm_s = max(pipe.wait_ready() for pipe in self._pipes)
+                if carried:
+                    self._pipes = [AsyncPipeline(self.character, stages,
+                                                 solver_pipeline=self._pipes[0], **kwargs)]
+                    warm_s += self._pipes[0].warm_up()
             except (ValueError, RemoteError) as e:
                 for pipe in self._pipes:
                     pipe.close()
@@ -201,7 +222,8 @@ class SkinNode(Node):
         else:
             if workers > 1:
                 allow_concurrent_calls()            # the workers deform at the same time
-            self._pipes = [skin_node.Pipeline(self.character, stages=stages, **kwargs)
+            self._pipes = [AsyncPipeline(self.character, stages, **kwargs) if carried else
+                           skin_node.Pipeline(self.character, stages=stages, **kwargs)
                            for _ in range(workers)]
             # Every worker's pipeline warms up (after the first, the kernels are
             # compiled and this builds their lazy caches), so the first real frame
@@ -218,7 +240,7 @@ class SkinNode(Node):
         self._received = self._processed = self._stale = self._failed = 0
         self._worker_frames = [0] * workers
         self._stamps = StampOrder(p("time_jump_tolerance"))
-        self._period = {"frames": 0, "deform_ms": 0.0, "latency_ms": 0.0}
+        self._period = {"frames": 0, "deform_ms": 0.0, "latency_ms": 0.0, "lag": 0, "lag_max": 0}
         self._timings: dict = dict(self._pipes[0].timings)
         # One-slot mailbox between the callback and the workers; every pose taken
         # gets a number, and results are published in that order.
@@ -265,6 +287,7 @@ class SkinNode(Node):
             + (f"stages {stages}" if ch.rig is not None else
                f"stages {stages} idle (no closed skinned part to solve)")
             + f", {workers} worker{'s' if workers > 1 else ''}"
+            + (", correction carried (solved behind the answers)" if carried else "")
             + (f" (deform process{'es' if workers > 1 else ''} "
                + ", ".join(str(pipe.pid) for pipe in self._pipes) + ")"
                if self._isolated else ""))
@@ -298,6 +321,12 @@ class SkinNode(Node):
             description="where each worker deforms: 'process' (a child process fed through "
                         "shared memory, so rclpy and the deform never wait on one GIL) or "
                         "'thread' (in this process)"))
+        self.declare_parameter("correction", "inline", ParameterDescriptor(
+            type=S, read_only=True,
+            description="'inline' (each pose's skin solved before it is published) or "
+                        "'carried' (each pose answered at once, about DQS's cost: DQS plus "
+                        "the newest correction a solver behind it finished, a few frames "
+                        "old, carried by each vertex's rotation; needs workers:=1)"))
         self.declare_parameter("frame_id", "world", ParameterDescriptor(
             type=S, description="frame of skin/points and skin/marker"))
         self.declare_parameter("name_map", "", ParameterDescriptor(
@@ -334,6 +363,10 @@ class SkinNode(Node):
                      if "pipeline" in updates else None)
         except ValueError as e:
             return SetParametersResult(successful=False, reason=str(e))
+        if self._carried and stages[:1] != ("dqs",):
+            return SetParametersResult(successful=False, reason=(
+                f"correction:=carried rides on DQS: the first stage must be 'dqs', "
+                f"got {list(stages[:1])}"))
         if core.get("warm_start") and len(self._pipes) > 1:
             return SetParametersResult(successful=False, reason=(
                 f"warm_start needs workers:=1, not {len(self._pipes)}"))
@@ -343,7 +376,7 @@ class SkinNode(Node):
                               updates.get("frame_id", live.frame_id))
         with self._cond:
             self._live = accepted
-            if spare is not None and not self._isolated:
+            if spare is not None and not self._isolated and not self._carried:
                 self._spare = spare
         return SetParametersResult(successful=True)
 
@@ -360,8 +393,9 @@ class SkinNode(Node):
                 spare, self._spare = self._spare, None    # the first worker takes the checked one
             announce = self._announced is not live
             self._announced = live
-        if tuple(pipe.stage_names) != live.stages and self._isolated:
-            pipe.set_stages(live.stages, **live.params)      # built and warmed up there
+        if tuple(pipe.stage_names) != live.stages and hasattr(pipe, "set_stages"):
+            # built and warmed up there (a deform process; a carried correction's solver)
+            pipe.set_stages(live.stages, **live.params)
         elif tuple(pipe.stage_names) != live.stages:
             pipe = spare or skin_node.Pipeline(self.character, stages=list(live.stages),
                                                **live.params)
@@ -475,11 +509,15 @@ class SkinNode(Node):
             self._period["frames"] += 1
             self._period["deform_ms"] += deform_ms
             self._period["latency_ms"] += 1e3 * (time.perf_counter() - t_received)
+            if self._carried:
+                lag = pipe.counts.get("correction_lag", -1)
+                self._period["lag"] += lag
+                self._period["lag_max"] = max(self._period["lag_max"], lag)
 
     def _on_diagnostics_timer(self) -> None:
         with self._cond:                # one consistent snapshot of the workers' counts
             period, self._period = self._period, {"frames": 0, "deform_ms": 0.0,
-                                                  "latency_ms": 0.0}
+                                                  "latency_ms": 0.0, "lag": 0, "lag_max": 0}
             processed, per_worker = self._processed, list(self._worker_frames)
         n = max(period["frames"], 1)
         unknown = self._mapper.unknown_counts
@@ -505,6 +543,14 @@ class SkinNode(Node):
             "ms_receive_to_publish": period["latency_ms"] / n,
             **{f"ms_{k}": float(v) for k, v in self._timings.items()},
         }
+        if self._carried:
+            # how many poses old the corrections published this second were
+            # (-1: none solved yet, plain DQS), and the solves that failed
+            pipe = self._pipes[0]
+            values.update(correction_lag_mean=period["lag"] / n,
+                          correction_lag_max=period["lag_max"],
+                          correction_solves_skipped=pipe.skipped,
+                          correction_solves_failed=pipe.failed)
         level = "error" if self._failed else "warn" if values["rejected_total"] or unknown else "ok"
         message = (f"{processed} processed, {self._stale} skipped as stale, "
                    f"{values['rejected_total']} rejected")
@@ -513,10 +559,12 @@ class SkinNode(Node):
             self.character.name, level, message, values))
         if period["frames"]:
             stages = " ".join(f"{k} {v:.2f}" for k, v in self._timings.items() if k != "total")
+            age = (f" | correction {values['correction_lag_mean']:.1f} poses old "
+                   f"(at most {values['correction_lag_max']})" if self._carried else "")
             self.get_logger().info(
                 f"{period['frames']} frames/s | {values['ms_per_frame']:.2f} ms per frame "
                 f"(last frame: {stages}) | receive->publish "
-                f"{values['ms_receive_to_publish']:.2f} ms | {message}")
+                f"{values['ms_receive_to_publish']:.2f} ms{age} | {message}")
 
     def stop(self) -> None:
         """Stop the workers and join them (each finishes the frame it is on).
@@ -530,8 +578,8 @@ class SkinNode(Node):
             self._cond.notify_all()
         for t in self._workers:
             t.join()
-        if self._isolated:
-            for pipe in self._pipes:
+        for pipe in self._pipes:
+            if hasattr(pipe, "close"):
                 pipe.close()
 
 

@@ -397,6 +397,48 @@ def test_two_workers_publish_in_order_what_one_pipeline_gives(tmp_path, isolatio
 
 
 @pytest.mark.parametrize("isolation", ["thread", "process"])
+def test_carried_correction_answers_dqs_at_once_then_the_solved_skin(tmp_path, isolation):
+    """correction:=carried: the first pose after ready is answered with plain
+    DQS (nothing solved yet); the same pose again, once its solve is done, with
+    the default pipeline's skin, as the in-process pipeline gives it."""
+    names = character_skeleton("arm").channel_names
+    q = np.zeros(len(names))
+    q[names.index("elbow_rz")] = 2.4
+    got, diags = [], []
+    with arm_node(tmp_path, "-p", "correction:=carried", "-p", f"isolation:={isolation}") as (
+            proc, env, log):
+        with ros_client(env, "skin_node_carried_test") as (node, ex, set_params):
+            sub = node.create_subscription(PointCloud2, "skin/points", got.append, 10)
+            node.create_subscription(DiagnosticArray, "skin/diagnostics",
+                                     lambda m: diags.append(diagnostic_values(m)), 10)
+            assert not set_params(pipeline=["lbs", "smooth"])[0].successful   # rides on DQS
+            pub = node.create_publisher(JointState, "joint_states", 10)
+            deadline = time.monotonic() + 10.0
+            while not (pub.get_subscription_count() and sub.get_publisher_count()) \
+                    and time.monotonic() < deadline:
+                ex.spin_once(timeout_sec=0.05)
+            for k in range(2):
+                pub.publish(joint_state(10**9 + k * 10**9, names, q))
+                deadline = time.monotonic() + 10.0
+                while len(got) <= k and time.monotonic() < deadline:
+                    ex.spin_once(timeout_sec=0.01)
+                time.sleep(1.0)                 # the solver finishes the pose (ms)
+            deadline = time.monotonic() + 5.0
+            while time.monotonic() < deadline and not (
+                    diags and int(diags[-1]["frames_processed"]) == 2):
+                ex.spin_once(timeout_sec=0.1)
+        assert "correction carried" in log.read_text()
+    assert [stamp_ns(c) for c in got] == [10**9, 2 * 10**9]
+    ch = skin_node.load_character("arm", surface_vertices=ARM_VERTICES, progress=False)
+    dqs, solved = skin_node.Pipeline.preset(ch, "dqs").deform(q), skin_node.Pipeline(ch).deform(q)
+    assert np.abs(dqs - solved).max() > 0.005            # the correction is visible here
+    assert np.abs(point_cloud2_to_vertices(got[0]) - dqs).max() < 1e-6
+    assert np.abs(point_cloud2_to_vertices(got[1]) - solved).max() < 1e-6
+    d = diags[-1]
+    assert int(d["correction_solves_failed"]) == 0 and int(d["frames_skipped_stale"]) == 0
+
+
+@pytest.mark.parametrize("isolation", ["thread", "process"])
 def test_two_workers_both_take_a_parameter_change(tmp_path, isolation):
     names = character_skeleton("arm").channel_names
     stages = ["dqs", "pbd", "collision", "smooth", "volume"]      # not the default order
@@ -716,6 +758,8 @@ def test_skin_bag_interrupted_exits_1_in_order(tmp_path):
     (None, ("-p", "weights:=file")),             # the built-in arm has no file weights
     (None, ("-p", "warm_start:=true", "-p", "workers:=2")),  # history needs one worker
     (None, ("-p", "isolation:=fork")),           # neither thread nor process
+    (None, ("-p", "correction:=carried", "-p", "workers:=2")),  # answers on one worker
+    (None, ("-p", "correction:=sometimes")),     # neither carried nor inline
 ])
 def test_bad_start_up_is_one_line_and_non_zero(tmp_path, content, args):
     path = tmp_path / "character.yaml"
@@ -736,7 +780,7 @@ def test_bad_start_up_is_one_line_and_non_zero(tmp_path, content, args):
 
 def test_params_files_hold_only_declared_valid_parameters():
     node_params = {"character", "surface_vertices", "weights", "pipeline", "frame_id",
-                   "name_map", "workers"}
+                   "name_map", "workers", "isolation", "correction"}
     for name in ("arm", "humanoid"):
         params = yaml.safe_load((REPO / "config" / f"{name}.yaml").read_text())
         params = params["skin_node"]["ros__parameters"]

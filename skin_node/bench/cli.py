@@ -12,6 +12,7 @@ Subcommands (``run`` is the default when the first argument is an option)::
     skin_bench export-memory --frames 1000   # the streaming exporter's peak RSS
     skin_bench ablation --scenes humanoid:24000 --clips walk,squat   # each part's worth
     skin_bench ros-latency --seconds 10
+    skin_bench carried --scene humanoid:24000 --clips walk,squat   # correction solved behind
     skin_bench pictures --out closeups.png      # z-buffer close-ups, LBS / DQS / paper / ours
     skin_bench report            # everything, into bench_results/, prints a markdown table
 
@@ -39,6 +40,7 @@ import numpy as np
 from . import charts
 from ..motion import GLTF_PREFIX, file_animations, file_clip, load_motion
 from ..pipeline import STAGE_NAMES
+from .carried import carried_table, run_carried
 from .export_memory import export_memory_line, run_export_memory
 from .measure import (JITTER_FRAMES, Motion, Progress, expand_methods, expand_scenes,
                       load_scene, make_motion, memory_profile, parse_method, run_method)
@@ -461,17 +463,24 @@ def report(out: Path, quick: bool = False, ros: bool = True, progress: bool = Tr
     lats = []
     if ros:
         try:
-            # one worker (the node's default) and two (config/humanoid.yaml) on
-            # the walk, and one on the squat (its deep bends are the slow frames)
-            runs = [(1, ""), (2, "")] + ([] if quick else [(1, "squat")])
-            for workers, clip in runs:
-                lats.append(measure_latency(seconds=5 if quick else 10,
+            # each pose solved before it is published (the node's default), on
+            # one worker and two, on the walk and the squat (its deep bends are
+            # the slow frames); and the correction carried (config/humanoid.yaml),
+            # every 8th published skin graded
+            clips = [""] if quick else ["", "squat"]
+            runs = [([f"workers:={w}"], c, 0) for w in (1, 2) for c in clips] + \
+                [(["correction:=carried"], c, 8) for c in clips]
+            for params, clip, every in runs:
+                lats.append(measure_latency(seconds=5 if quick else 20,
                                             surface_vertices=2000 if quick else 24000,
                                             character="arm" if quick else "humanoid",
-                                            params=[f"workers:={workers}"], clip=clip))
+                                            params=params, clip=clip, measure_every=every))
             write_json(lats, out / "ros_latency.json")
         except Exception as e:  # noqa: BLE001 - ROS may be missing; the rest still stands
             print(f"skin_bench: ros-latency skipped: {type(e).__name__}: {e}", file=sys.stderr)
+    carried = run_carried("arm:2000" if quick else "humanoid:24000",
+                          ["elbow_bend"] if quick else ["walk", "squat"], progress=progress)
+    write_json(carried, out / "carried.json")
     closeups(out / "closeups.png", quick=quick)
     write_json(against_dqs(main["runs"]), out / "against_dqs.json")
     md = ["## Benchmark summary", "",
@@ -489,7 +498,11 @@ def report(out: Path, quick: bool = False, ros: bool = True, progress: bool = Tr
               f"{m}: " + ", ".join(f"{r['case']} {'ok' if r['stable'] else '+'.join(r['failed'])}"
                                    for r in stab if r["method"] == m)
               for m in dict.fromkeys(r["method"] for r in stab)), "",
-          memory_line(mem)]
+          memory_line(mem), "",
+          "The correction carried (`AsyncPipeline`, the node's `correction:=carried`): "
+          "each pose answered at once with DQS plus the newest correction solved behind "
+          "it, streamed in real time at the clip's rate; measures every 4th answer:", "",
+          carried_table(carried)]
     for lat in lats:
         md += ["", latency_line(lat)]
     md += ["", "![z-buffer close-ups](closeups.png)"]
@@ -565,6 +578,13 @@ def _parser() -> argparse.ArgumentParser:
 
     sub.add_parser("ros-latency", help="input-to-output latency of the node", add_help=False)
 
+    k = sub.add_parser("carried", help="the correction solved behind the answers, streamed "
+                                       "in real time: time against DQS, age, skin measures")
+    k.add_argument("--scene", default="humanoid:24000")
+    k.add_argument("--clips", default="walk,squat")
+    k.add_argument("--every", type=int, default=4, help="measure every n-th answer")
+    common(k)
+
     c = sub.add_parser("pictures", help="z-buffer close-ups of methods side by side")
     c.add_argument("--out", type=Path, default=Path("bench_results/closeups.png"))
     c.add_argument("--pipelines", nargs="+", default=["lbs,dqs,paper,default"],
@@ -628,6 +648,12 @@ def main(argv: list | None = None) -> int:
             print(export_memory_line(res))
             for line in res["lines"]:
                 print("  " + line)
+        elif a.cmd == "carried":
+            rows = run_carried(a.scene, _list(a.clips), a.every, progress=prog)
+            a.out.mkdir(parents=True, exist_ok=True)
+            write_json(rows, a.out / "carried.json")
+            print(carried_table(rows))
+            print(f"\nwritten to {a.out}/")
         elif a.cmd == "pictures":
             print(closeups(a.out, methods=_pipelines(a.pipelines), quick=a.quick))
         elif a.cmd == "report":

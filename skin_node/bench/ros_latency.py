@@ -54,8 +54,15 @@ def _rss_mb(pid: int) -> float:
 def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str = "humanoid",
                     surface_vertices: int = 24000, domain: int | None = None,
                     ready_timeout: float = 300.0, params: list | None = None,
-                    weights: str = "automatic", bvh: str = "", clip: str = "") -> dict:
+                    weights: str = "automatic", bvh: str = "", clip: str = "",
+                    measure_every: int = 0, measure_most: int = 120) -> dict:
     """Run the node and measure it; see the module docstring. Returns a dict.
+    ``measure_every`` > 0: every such pose's published skin (at most
+    ``measure_most`` of them) is measured after the run against the default
+    pipeline's skin solved for that pose and DQS's
+    (:func:`skin_node.bench.carried.compare_skins`: exact pairs, folds,
+    roughness, distance), so what a subscriber got is graded, not what the
+    node meant to send.
     ``params``: more node parameters as ``name:=value`` (``threads:=2``).
     ``character`` may be a character file (``surface_vertices`` then does not
     apply); ``bvh``: play this BVH retargeted to it instead of the built-in clip,
@@ -75,7 +82,8 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     if domain is None:
         with claim_domain() as claim:           # held until the node is gone
             return measure_latency(seconds, rate, character, surface_vertices, claim.domain,
-                                   ready_timeout, params, weights, bvh, clip)
+                                   ready_timeout, params, weights, bvh, clip, measure_every,
+                                   measure_most)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                PYTHONUNBUFFERED="1")
     os.environ.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
@@ -98,7 +106,8 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
     node = rclpy.create_node("skin_bench_latency")
     ex = SingleThreadedExecutor()
     ex.add_node(node)
-    lat, diag, ready, first = [], {}, [], {}
+    lat, diag, ready, first, lags = [], {}, [], {}, []
+    sent_pose, kept = {}, []              # stamp -> pose of each kept one; (pose, raw cloud)
     clock = node.get_clock()
 
     def on_points(raw: bytes):
@@ -108,6 +117,8 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
         lat.append((now - stamp) / 1e6)
         if stamp == first.get("stamp"):
             first["ms"] = lat[-1]
+        if stamp in sent_pose and len(kept) < measure_most:
+            kept.append((sent_pose.pop(stamp), bytes(raw)))
 
     def on_diag(msg):
         try:
@@ -116,6 +127,9 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
             return
         if float(vals.get("ms_per_frame", "nan") or "nan") == 0.0:
             vals.pop("ms_per_frame")        # a period without frames (the drain)
+        elif "correction_lag_mean" in vals:
+            lags.append((float(vals["fps"]), float(vals["correction_lag_mean"]),
+                         int(vals["correction_lag_max"])))
         diag.update(vals)
 
     node.create_subscription(Mesh, "skin/mesh", lambda m: ready.append(1), QOS_LATCHED)
@@ -153,8 +167,11 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
                 time.sleep(wait)
             q = frames[sent % len(frames)]
             msg = channels_to_joint_state(names, q, clock.now().to_msg())
+            stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
             if not sent:
-                first["stamp"] = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+                first["stamp"] = stamp
+            if measure_every and sent % measure_every == 0 and sent >= 8:
+                sent_pose[stamp] = q
             pub.publish(msg)
             sent += 1
         # drain outputs and wait for a diagnostics message that saw every input
@@ -172,6 +189,16 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
         log.close()
         os.unlink(log.name)
     L = np.array(lat) if lat else np.array([np.nan])
+    quality = {}
+    if kept:
+        from rclpy.serialization import deserialize_message
+
+        from msg_adapters import point_cloud2_to_vertices
+        from .carried import compare_skins
+        skins = [point_cloud2_to_vertices(deserialize_message(raw, PointCloud2)).astype(float)
+                 for _, raw in kept]
+        quality = compare_skins(f"{character}:{surface_vertices}" if builtin else character,
+                                [q for q, _ in kept], skins)
     return {"character": character, "surface_vertices": surface_vertices, "weights": weights,
             "motion": bvh or clip or "built-in", "rate_hz": rate,
             "seconds": seconds, "node_ready_s": ready_s, "inputs": sent, "outputs": len(lat),
@@ -184,7 +211,11 @@ def measure_latency(seconds: float = 10.0, rate: float = 120.0, character: str =
             "node_received": int(diag.get("frames_received", -1)),
             "node_ms_per_frame": float(diag.get("ms_per_frame", "nan")),
             "node_rss_mb": rss_mb, "node_exit_code": proc.returncode,
-            "domain_id": domain, "params": list(params or [])}
+            # correction:=carried: how many poses old the published corrections were
+            **({"correction_lag_mean": sum(f * m for f, m, _ in lags)
+                / max(sum(f for f, _, _ in lags), 1.0),
+                "correction_lag_max": max(x for _, _, x in lags)} if lags else {}),
+            "domain_id": domain, "params": list(params or []), **quality}
 
 
 def latency_line(lat: dict) -> str:
@@ -201,6 +232,15 @@ def latency_line(lat: dict) -> str:
             f"node skipped {lat['skipped_stale']} as stale"
             + (f", node resident {lat['node_rss_mb']:.0f} MB"
                if np.isfinite(lat.get("node_rss_mb", np.nan)) else "")
+            + (f", correction {lat['correction_lag_mean']:.1f} poses old on average "
+               f"(at most {lat['correction_lag_max']})" if "correction_lag_mean" in lat else "")
+            + (f"; {lat['frames_measured']} published skins measured: exact pairs "
+               f"{lat['answer_pairs']} (the solved skin's {lat['solved_pairs']}, DQS's "
+               f"{lat['dqs_pairs']}), folds90 {lat['answer_folds90']} ({lat['solved_folds90']}, "
+               f"{lat['dqs_folds90']}), roughness {lat['answer_roughness']:.3f} "
+               f"({lat['solved_roughness']:.3f}, {lat['dqs_roughness']:.3f}), farthest vertex "
+               f"from the solved skin {lat['dev_median_mm']:.1f} mm at the median frame"
+               if "frames_measured" in lat else "")
             + (f" ({', '.join(lat['params'])})" if lat.get("params") else ""))
 
 
@@ -220,13 +260,17 @@ def main(argv: list | None = None) -> int:
     ap.add_argument("--out", default="", help="write the result as JSON here")
     ap.add_argument("--param", action="append", default=[], metavar="NAME:=VALUE",
                     help="a node parameter, e.g. --param threads:=2 (repeatable)")
+    ap.add_argument("--measure-every", type=int, default=0, metavar="N",
+                    help="grade every N-th published skin (at most 120) against the solved "
+                         "skin and DQS: exact pairs, folds, roughness, distance")
     a = ap.parse_args(argv)
     bad = [p for p in a.param if ":=" not in p]
     if bad:
         ap.error(f"--param takes NAME:=VALUE, got {bad}")
     try:
         res = measure_latency(a.seconds, a.rate, a.character, a.surface_vertices, a.domain,
-                              params=a.param, weights=a.weights, bvh=a.bvh, clip=a.clip)
+                              params=a.param, weights=a.weights, bvh=a.bvh, clip=a.clip,
+                              measure_every=a.measure_every)
     except (OSError, ValueError, RuntimeError) as e:
         print(f"skin_bench ros-latency: error: {e}", file=sys.stderr)
         return 2

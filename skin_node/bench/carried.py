@@ -1,0 +1,134 @@
+"""``skin_bench carried``: the carried correction against DQS and the solved skin.
+
+Plays each clip in real time at its rate (120 Hz for the built-in clips)
+into an :class:`~skin_node.async_pipeline.AsyncPipeline` on this process, as
+a live stream would reach it, with plain DQS timed right after each answer
+(interleaved, so both see the same machine). Per clip:
+
+- the answer's time per pose against DQS's median (median and 90th
+  percentile: a 120 Hz consumer sees the tail), and DQS's own time;
+- how many poses old the correction was (median, 90th percentile, most) and
+  the poses the solver never took;
+- on every ``every``-th answer, after the stream: exact intersecting pairs,
+  sharp folds (``folds90``) and roughness of the answer, of the pipeline's
+  skin solved for that very pose (the inline reference) and of DQS's, and the
+  answer's farthest vertex from the solved skin (median and largest frame).
+
+The figures depend on the machine's speed (a slower solve is older when it
+lands): the report runs this beside the other figures of the same run.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..async_pipeline import AsyncPipeline
+from ..pipeline import Pipeline
+from .measure import Progress, load_scene, make_motion, parse_scene, scene_metrics
+
+
+def skin_measures(metrics, frame, V: np.ndarray) -> tuple:
+    """(exact intersecting pairs, folds90, roughness) of surface ``V`` posed in ``frame``."""
+    m = metrics.measure(V, frame, crossings=False)
+    pairs = metrics.intersections(V)
+    return int(pairs[0] + pairs[1]), int(m["folds90"]), float(m["roughness"])
+
+
+def compare_skins(scene: str, poses: list, skins: list, progress: bool = False) -> dict:
+    """Sums over ``skins`` (answers to ``poses``) of :func:`skin_measures`,
+    beside the default pipeline's skin solved for each pose and DQS's, and
+    how far each answer lies from the solved skin (per frame its farthest
+    vertex: ``dev_median_mm``, ``dev_max_mm``)."""
+    sc = parse_scene(scene)
+    ch, _ = load_scene(sc)
+    metrics = scene_metrics(sc)
+    ref, dqs = Pipeline(ch), Pipeline.preset(ch, "dqs")
+    n = len(ch.V)
+    sums = {k: np.zeros(3) for k in ("answer", "solved", "dqs")}
+    dev = []
+    bar = Progress(len(poses), f"{scene} measures", progress)
+    for q, V in zip(poses, skins):
+        R = ref.deform(q)[:n]
+        fr = ref.last_frame
+        dev.append(float(np.linalg.norm(V[:n] - R, axis=1).max()) * 1e3)
+        for key, X in (("answer", V[:n]), ("solved", R), ("dqs", dqs.deform(q)[:n])):
+            sums[key] += skin_measures(metrics, fr, X)
+        bar.update()
+    bar.close()
+    out = {"frames_measured": len(poses),
+           "dev_median_mm": float(np.median(dev)) if dev else float("nan"),
+           "dev_max_mm": float(np.max(dev)) if dev else float("nan")}
+    for key, s in sums.items():
+        out[f"{key}_pairs"], out[f"{key}_folds90"] = int(s[0]), int(s[1])
+        out[f"{key}_roughness"] = float(s[2] / max(len(poses), 1))
+    return out
+
+
+def run_carried(scene: str = "humanoid:24000", clips=("walk", "squat"), every: int = 4,
+                warm_frames: int = 8, progress: bool = True) -> list:
+    """One row per clip; see the module docstring."""
+    sc = parse_scene(scene)
+    ch, _ = load_scene(sc)
+    rows = []
+    for clip in clips:
+        mo = make_motion(clip, ch)
+        if mo is None or mo.x is not None:
+            raise ValueError(f"'{clip}' is not a clip of {scene}")
+        frames, rate = np.asarray(mo.frames), float(mo.fps)
+        dqs = Pipeline.preset(ch, "dqs")
+        with AsyncPipeline(ch) as ap:
+            t_warm = ap.warm_up()
+            dqs.deform(frames[0])
+            answer_ms, dqs_ms, lags, kept = [], [], [], []
+            bar = Progress(len(frames), f"{scene} {clip} at {rate:.0f} Hz", progress)
+            t0 = time.perf_counter()
+            for k, q in enumerate(frames):
+                # sleep, not spin: a spinning thread would hold the GIL the solver needs
+                wait = t0 + k / rate - time.perf_counter()
+                if wait > 0:
+                    time.sleep(wait)
+                a = time.perf_counter()
+                V = ap.deform(q)
+                b = time.perf_counter()
+                dqs.deform(q)
+                e = time.perf_counter()
+                answer_ms.append((b - a) * 1e3)
+                dqs_ms.append((e - b) * 1e3)
+                lags.append(ap.lag)
+                if k >= warm_frames and k % every == 0:
+                    kept.append((q, V))
+                bar.update()
+            bar.close()
+            skipped, failed = ap.skipped, ap.failed
+        d50 = float(np.median(dqs_ms))
+        L = np.asarray(lags[warm_frames:])
+        row = {"scene": scene, "motion": clip, "rate_hz": rate, "frames": len(frames),
+               "dqs_ms_p50": d50, "answer_ms_p50": float(np.median(answer_ms)),
+               "answer_ms_p90": float(np.percentile(answer_ms, 90)),
+               "answer_x_dqs_p50": float(np.median(answer_ms)) / d50,
+               "answer_x_dqs_p90": float(np.percentile(answer_ms, 90)) / d50,
+               "lag_p50": float(np.median(L)), "lag_p90": float(np.percentile(L, 90)),
+               "lag_max": int(L.max()), "solves_skipped": skipped, "solves_failed": failed,
+               "warm_up_s": t_warm}
+        row.update(compare_skins(scene, [q for q, _ in kept], [V for _, V in kept], progress))
+        rows.append(row)
+    return rows
+
+
+def carried_table(rows: list) -> str:
+    """Markdown: the answer against DQS, the correction's age, the skins' measures."""
+    out = ["| scene | motion | answer x DQS p50 / p90 (DQS ms) | correction age p50 / p90 / max "
+           "(poses) | pairs answer / solved / DQS | folds90 answer / solved / DQS | "
+           "roughness answer / solved | from solved p50 / max (mm) |",
+           "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        out.append(
+            f"| {r['scene']} | {r['motion']} at {r['rate_hz']:.0f} Hz | "
+            f"{r['answer_x_dqs_p50']:.2f} / {r['answer_x_dqs_p90']:.2f} ({r['dqs_ms_p50']:.2f}) | "
+            f"{r['lag_p50']:.0f} / {r['lag_p90']:.0f} / {r['lag_max']} | "
+            f"{r['answer_pairs']} / {r['solved_pairs']} / {r['dqs_pairs']} | "
+            f"{r['answer_folds90']} / {r['solved_folds90']} / {r['dqs_folds90']} | "
+            f"{r['answer_roughness'] / max(r['solved_roughness'], 1e-12):.3f} x | "
+            f"{r['dev_median_mm']:.1f} / {r['dev_max_mm']:.1f} |")
+    return "\n".join(out)
