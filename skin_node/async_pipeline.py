@@ -27,6 +27,7 @@ process of its own.
 """
 from __future__ import annotations
 
+import os
 import threading
 import time
 
@@ -36,6 +37,13 @@ import numpy as np
 from .kernels.skinning import dqs_carry, dqs_offsets, matrices_to_dual_quaternions
 from .kernels.threads import allow_concurrent_calls, check_concurrent_calls
 from .pipeline import DEFAULT_STAGES, Pipeline
+
+#: Niceness of the solver (its thread, or its process): the answers, the
+#: executor and DDS come first. Through ROS on two cores (the squat at 120 Hz,
+#: 30 s, two runs each) p99 receive-to-publish 8.1 and 7.4 ms, no pose
+#: skipped, against 9.1 and 8.2 ms and 1-2 skipped at the same priority; the
+#: correction no older.
+SOLVER_NICE = 10
 
 #: The largest change of any joint channel (rad) between the pose asked and
 #: the one a correction was solved for at which that correction still counts
@@ -81,6 +89,7 @@ class AsyncPipeline:
             allow_concurrent_calls()        # the answer's kernels run beside the solver's
         self.solver = solver_pipeline if solver_pipeline is not None else \
             Pipeline(character, stages, **params)
+        self._niced = None
         self.stage_names = list(stages)
         self._n = len(character.V)
         self._weights = character.rig.weights(self.params["weight_scheme"]) \
@@ -110,8 +119,10 @@ class AsyncPipeline:
         self._busy = False
         self._closed = False
         self._generation = 0
+        self._started = threading.Event()
         self._thread = threading.Thread(target=self._run, name="skin_solver", daemon=True)
         self._thread.start()
+        self._started.wait()
 
     @property
     def params(self) -> dict:
@@ -184,6 +195,9 @@ class AsyncPipeline:
 
     # ------------------------------------------------------------ the solver
     def _run(self) -> None:
+        if self._local:
+            _yield_cpu(threading.get_native_id())
+        self._started.set()
         while True:
             with self._cond:
                 while self._pending is None and not self._closed:
@@ -208,6 +222,10 @@ class AsyncPipeline:
     def _solve(self, q: np.ndarray, p: np.ndarray, seq: int, params: dict,
                generation: int) -> None:
         s = self.solver
+        pid = getattr(s, "pid", None)
+        if pid and pid != self._niced:          # a process of its own (started again?)
+            _yield_cpu(pid)
+            self._niced = pid
         if params:
             s.set_params(**params)
         Y = s.deform(q)
@@ -313,3 +331,13 @@ def _fresh(change: np.ndarray) -> float:
     d = float(np.abs((change + np.pi) % (2.0 * np.pi) - np.pi).max())
     x = min(1.0, max(0.0, (STALE[1] - d) / (STALE[1] - STALE[0])))
     return x * x * (3.0 - 2.0 * x)
+
+
+def _yield_cpu(tid: int) -> None:
+    """Lower thread or process ``tid`` to :data:`SOLVER_NICE` (best effort: a
+    system that refuses leaves it as it was, and only the tail suffers)."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, tid, max(os.getpriority(os.PRIO_PROCESS, tid),
+                                                 SOLVER_NICE))
+    except (AttributeError, OSError):        # pragma: no cover - not Linux, or refused
+        pass

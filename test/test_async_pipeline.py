@@ -6,11 +6,13 @@ after a jump), and on a stream one pose behind by measures independent of
 the stages: exact intersecting pairs, sharp folds, roughness, distance."""
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
 from skin_node import Pipeline, load_character, make_clip
-from skin_node.async_pipeline import STALE, AsyncPipeline
+from skin_node.async_pipeline import SOLVER_NICE, STALE, AsyncPipeline
 from skin_node.bench.measure import SceneMetrics
 
 
@@ -132,6 +134,13 @@ def test_a_parameter_change_reaches_the_solver_and_forgets_old_corrections(human
         assert ap.wait(60.0)
         V = ap.deform(q)
     assert np.abs(V - Pipeline(humanoid, contact_rounds=1).deform(q)).max() < 1e-12
+
+
+def test_the_solver_yields_the_cpu_to_the_answers(humanoid):
+    with AsyncPipeline(humanoid) as ap:
+        assert ap.wait(5.0)
+        assert os.getpriority(os.PRIO_PROCESS, ap._thread.native_id) >= SOLVER_NICE
+        assert os.getpriority(os.PRIO_PROCESS, 0) < SOLVER_NICE   # this thread is as it was
 
 
 def test_the_correction_must_ride_on_dqs(humanoid):
