@@ -152,6 +152,15 @@ def write_bag(path: Path, storage: str, stream: list[tuple[int, JointState]]) ->
             writer.write(conn, t, serialize_message(msg))
 
 
+def matched(ex, pub, sub, timeout: float = 10.0) -> None:
+    """Spin ``ex`` until ``pub`` sees the node's subscription and ``sub`` its
+    publisher (both ways matched: nothing sent after is lost), or ``timeout``."""
+    deadline = time.monotonic() + timeout
+    while not (pub.get_subscription_count() and sub.get_publisher_count()) \
+            and time.monotonic() < deadline:
+        ex.spin_once(timeout_sec=0.05)
+
+
 def arm_stream(n_valid: int, hz: float, with_bad: bool = True):
     """Valid arm poses at ``hz``, each followed (when ``with_bad``) by one bad message
     of a rotating kind. Returns (stream, valid stamps, bad stamps by reason)."""
@@ -413,10 +422,7 @@ def test_carried_correction_answers_dqs_at_once_then_the_solved_skin(tmp_path, i
                                      lambda m: diags.append(diagnostic_values(m)), 10)
             assert not set_params(pipeline=["lbs", "smooth"])[0].successful   # rides on DQS
             pub = node.create_publisher(JointState, "joint_states", 10)
-            deadline = time.monotonic() + 10.0
-            while not (pub.get_subscription_count() and sub.get_publisher_count()) \
-                    and time.monotonic() < deadline:
-                ex.spin_once(timeout_sec=0.05)
+            matched(ex, pub, sub)
             for k in range(2):
                 pub.publish(joint_state(10**9 + k * 10**9, names, q))
                 deadline = time.monotonic() + 10.0
@@ -453,10 +459,7 @@ def test_two_workers_both_take_a_parameter_change(tmp_path, isolation):
                 [True, True]
             assert not set_params(warm_start=True)[0].successful   # history needs one worker
             pub = node.create_publisher(JointState, "joint_states", 100)
-            deadline = time.monotonic() + 10.0        # both ways matched: nothing lost
-            while not (pub.get_subscription_count() and sub.get_publisher_count()) \
-                    and time.monotonic() < deadline:
-                ex.spin_once(timeout_sec=0.05)
+            matched(ex, pub, sub)
             # Bursts of three poses 2 ms apart into frames of several ms: while one
             # worker deforms the first, the other takes the second.
             for burst in range(20):

@@ -22,6 +22,8 @@ import math
 import numba as nb
 import numpy as np
 
+from .skinning import _turn
+
 #: Field value outside a part's grid: no contact possible there.
 FAR = 1e9
 #: ``skin_node.rigging.fields.REACH``: how far the other-weight grid looks.
@@ -126,16 +128,6 @@ def _blend(Q, sets, s0, s1, wvalues, wptr, wdims, origin, cell, j, x, y, z, excl
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _rotate(w0, x0, y0, z0, vx, vy, vz):
-    """Vector ``v`` rotated by unit quaternion ``(w0, x0, y0, z0)``."""
-    tx = 2.0 * (y0 * vz - z0 * vy)
-    ty = 2.0 * (z0 * vx - x0 * vz)
-    tz = 2.0 * (x0 * vy - y0 * vx)
-    return (vx + w0 * tx + (y0 * tz - z0 * ty), vy + w0 * ty + (z0 * tx - x0 * tz),
-            vz + w0 * tz + (x0 * ty - y0 * tx))
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
 def skinned_field(pf, Q, j, px, py, pz, x, y, z, iterations, clamp, exclude):
     """Part ``j``'s field at posed point ``p`` and its posed gradient.
 
@@ -152,11 +144,11 @@ def skinned_field(pf, Q, j, px, py, pz, x, y, z, iterations, clamp, exclude):
     for _ in range(iterations):
         w0, x0, y0, z0, tx, ty, tz = _blend(Q, sets, sptr[j], sptr[j + 1], wvalues, wptr,
                                             wdims, origin, cell, j, x, y, z, exclude)
-        x, y, z = _rotate(w0, -x0, -y0, -z0, px - tx, py - ty, pz - tz)
+        x, y, z = _turn(w0, -x0, -y0, -z0, px - tx, py - ty, pz - tz)
     val, gx, gy, gz = field_at(values, ptr, origin, cell, dims, j, x, y, z, clamp)
     if val >= FAR:
         return FAR, 0.0, 0.0, 0.0, x, y, z
-    gx, gy, gz = _rotate(w0, x0, y0, z0, gx, gy, gz)
+    gx, gy, gz = _turn(w0, x0, y0, z0, gx, gy, gz)
     return val, gx, gy, gz, x, y, z
 
 
