@@ -99,9 +99,10 @@ class AsyncPipeline:
         self._joint_channels = np.array(
             [3 + 3 * j + a for j in range(skel.n_joints) if skel.parents[j] >= 0
              for a in range(3)], dtype=np.int64)
-        # the last two corrections: (offsets (n, 3), their pose's joint channels, number)
+        # the newest correction: (offsets (n, 3), its pose's joint channels, its
+        # number, and since the one before: the offsets' change, the channels'
+        # change and its squared length (0 when there was none))
         self._last: tuple | None = None
-        self._before: tuple | None = None
         self._zero = np.zeros((self._n, 3))
         self.timings: dict = {}
         self.counts: dict = {}
@@ -162,16 +163,13 @@ class AsyncPipeline:
         riders = self.character.passengers
         out = np.empty((self._n + (len(riders) if riders else 0), 3))
         p = fr.q[self._joint_channels]
-        last, before = self._last, self._before       # the solver replaces, never edits
+        last = self._last                   # the solver replaces it, never edits it
         C, D, a, b = self._zero, self._zero, 0.0, 0.0
         if last is not None:
-            C, a = last[0], _fresh(p - last[1])
-            if before is not None and a > 0.0:
-                D = last[0] - before[0]
-                step = last[1] - before[1]
-                dd = float(step @ step)
-                b = a * min(1.0, max(-1.0, float((p - last[1]) @ step) / dd)) if dd > 1e-12 \
-                    else 0.0
+            C, p_last, _, D, step, dd = last
+            a = _fresh(p - p_last)
+            if dd > 1e-12 and a > 0.0:
+                b = a * min(1.0, max(-1.0, float((p - p_last) @ step) / dd))
         w = self._weights
         if w is not None:
             dqs_carry(self.character.V, w.Widx, w.Wval, matrices_to_dual_quaternions(fr.M), C, D,
@@ -242,7 +240,10 @@ class AsyncPipeline:
             self._solver_timings = dict(s.timings)
             self._solver_counts = dict(s.counts)
             if generation == self._generation:      # not solved with parameters since changed
-                self._before, self._last = self._last, (C, p, seq)
+                # and the change since the last solve, which the answers extrapolate
+                last = self._last
+                D, step = (C - last[0], p - last[1]) if last is not None else (self._zero, p * 0.0)
+                self._last = (C, p, seq, D, step, float(step @ step))
 
     def wait(self, timeout: float | None = None) -> bool:
         """Until the solver has solved the newest pose given (or ``timeout``
@@ -258,7 +259,7 @@ class AsyncPipeline:
         self._front.set_params(**params)
         with self._cond:
             self._params_pending.update(params)
-            self._last = self._before = None
+            self._last = None
             self._generation += 1
         if "weight_scheme" in params and self.character.rig is not None:
             self._weights = self.character.rig.weights(self.params["weight_scheme"])
@@ -301,7 +302,7 @@ class AsyncPipeline:
         if self._local:
             check_concurrent_calls("a solver in a thread beside the answers")
         with self._cond:
-            self._last = self._before = None
+            self._last = None
             self._given = self.skipped = 0
         return time.perf_counter() - t0
 
