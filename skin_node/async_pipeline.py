@@ -111,6 +111,8 @@ class AsyncPipeline:
         self.skipped = 0
         #: solves that raised or gave non-finite skin (answers go on with the last good one)
         self.failed = 0
+        #: solves whose correction the answers took up
+        self.solved = 0
         self.last_error: BaseException | None = None
         self._solver_timings: dict = {}
         self._solver_counts: dict = {}
@@ -244,6 +246,7 @@ class AsyncPipeline:
                 last = self._last
                 D, step = (C - last[0], p - last[1]) if last is not None else (self._zero, p * 0.0)
                 self._last = (C, p, seq, D, step, float(step @ step))
+                self.solved += 1
 
     def wait(self, timeout: float | None = None) -> bool:
         """Until the solver has solved the newest pose given (or ``timeout``
@@ -303,7 +306,7 @@ class AsyncPipeline:
             check_concurrent_calls("a solver in a thread beside the answers")
         with self._cond:
             self._last = None
-            self._given = self.skipped = 0
+            self._given = self.skipped = self.solved = 0
         return time.perf_counter() - t0
 
     def close(self, timeout: float = 5.0) -> None:

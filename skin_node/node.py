@@ -549,6 +549,7 @@ class SkinNode(Node):
             pipe = self._pipes[0]
             values.update(correction_lag_mean=period["lag"] / n,
                           correction_lag_max=period["lag_max"],
+                          correction_solves=pipe.solved,
                           correction_solves_skipped=pipe.skipped,
                           correction_solves_failed=pipe.failed)
         level = "error" if self._failed else "warn" if values["rejected_total"] or unknown else "ok"
