@@ -303,7 +303,6 @@ class Inflate(Stage):
         m = np.zeros(len(X))
         split_fade(m, *self._jcsr, fr.fade * fr.bent)
         m = m[v] * free[v]
-        g = np.empty((len(v), 3))
         lim = float(self.params["inflate_max"]) * self.radius.max()
         target = self.mesh_vol0 - (slack if deficit > 0.0 else -slack)
         # within the bulge limit's envelope first, the layer smoothed (it
