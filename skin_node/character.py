@@ -26,6 +26,11 @@ from .skeleton import Skeleton
 #: counts as coarse (:attr:`Character.resolved` 0) and as fine (1).
 RESOLUTION = (2.0, 3.5)
 
+#: Edges across a limb's radius at which the stages' ring and pass counts
+#: (``contact_rings``, ``mush_passes``...) are given: the built-in arm and
+#: humanoid at their default resolutions (8.2 and 7.2).
+SMOOTHING_RESOLUTION = 8.0
+
 #: Default tet counts: the paper's human has 51,110 tets; the arm prototype 12k.
 DEFAULT_TETS = {"arm": 12000, "humanoid": 52000}
 
@@ -126,6 +131,20 @@ class Character:
         x = np.clip((radius / np.maximum(self.mean_edges, 1e-12) - RESOLUTION[0])
                     / (RESOLUTION[1] - RESOLUTION[0]), 0.0, 1.0)
         return x * x * (3.0 - 2.0 * x)
+
+    @cached_property
+    def smoothing_scale(self) -> float:
+        """How many times finer than :data:`SMOOTHING_RESOLUTION` the skin
+        resolves its limbs (the median body vertex's rest distance from its
+        bone in mean edges), at least 1. The stages' ring counts grow by it
+        and their Laplacian pass counts by its square (a diffusion reaches
+        the square root of its passes), so a crease is rounded over the same
+        width in millimetres on finer skin: at their given counts the 43k
+        humanoid's squat kept 30% more sharp folds than DQS, at the 24k's
+        none. Coarser skin keeps the counts (fewer failed on the 12k)."""
+        radius = self.nearest_segments[1][:, 0]
+        x = float(np.median(radius / np.maximum(self.mean_edges, 1e-12)))
+        return max(1.0, x / SMOOTHING_RESOLUTION)
 
     @cached_property
     def nearest_segments(self) -> tuple:

@@ -93,6 +93,10 @@ class ParamSpec:
         return value
 
 
+#: The counts of rings and Laplacian passes below (``contact_rings``,
+#: ``mush_passes``...) and ``contact_margin`` are given for skin about
+#: :data:`~skin_node.character.SMOOTHING_RESOLUTION` edges across a limb's
+#: radius; finer skin scales them (:attr:`~skin_node.Character.smoothing_scale`).
 PIPELINE_PARAMS = {
     "weight_scheme": ParamSpec(str, "character", description="skin weights: 'character' (the "
                                "character's own: smooth bone heat, or a file's) or "

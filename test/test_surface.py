@@ -333,6 +333,27 @@ def test_mush_leaves_a_limb_too_coarse_for_it_alone(tmp_path, monkeypatch):
     assert np.median(Pipeline(fine, ["dqs", "mush"]).stages[1].resolved) == 1.0
 
 
+def test_a_finer_arm_at_150_keeps_its_crease_clean(monkeypatch):
+    """The arm at twice the default resolution (about 12 edges across its
+    radius) at 150 degrees: the smoothing's rings and passes and the contact's
+    margin grow with the resolution, so the crease is rounded over as many
+    millimetres as at the default; at the counts given for 8 edges across it
+    kept 50 intersecting pairs and 14 sharp folds (DQS 355 and 8)."""
+    ch = load_character("arm", surface_vertices=12000, progress=False)
+    assert 1.3 < ch.smoothing_scale < 1.6, ch.smoothing_scale
+    q = ch.pose(elbow_rz=np.radians(150))
+    si, sq = SelfIntersections(ch.V, ch.F, 0.0), SurfaceQuality(ch.V, ch.F)
+    d = Pipeline.preset(ch, "dqs").deform(q)
+    o = Pipeline.preset(ch, "default").deform(q)
+    d, o = {"pairs": len(si.pairs(d)), **sq(d)}, {"pairs": len(si.pairs(o)), **sq(o)}
+    assert d["pairs"] > 100 and o["pairs"] <= 0.1 * d["pairs"], (o, d)
+    assert o["folds90"] <= d["folds90"] and o["roughness"] <= 1.05 * d["roughness"], (o, d)
+    # the scale is the feature: at the given counts the crease crosses itself
+    monkeypatch.setattr(type(ch), "smoothing_scale", property(lambda self: 1.0))
+    u = Pipeline.preset(ch, "default").deform(q)
+    assert len(si.pairs(u)) > 0.1 * d["pairs"] or sq(u)["folds90"] > d["folds90"]
+
+
 def test_the_deepest_squat_meets_dqs_on_every_measure(humanoid):
     """The humanoid's deepest squat, where thighs, belly and groin meet:
     against DQS on the same weights, at most a tenth of its intersecting

@@ -96,6 +96,16 @@ class Stage:
     def __call__(self, frame: Frame) -> None:  # pragma: no cover - interface
         raise NotImplementedError
 
+    def rings(self, key: str) -> int:
+        """Parameter ``key``, a count of rings, at this character's
+        resolution (:attr:`~skin_node.Character.smoothing_scale`)."""
+        return int(round(int(self.params[key]) * self.character.smoothing_scale))
+
+    def passes(self, key: str) -> int:
+        """Parameter ``key``, a count of Laplacian passes, at this character's
+        resolution (grown by the square of its smoothing scale)."""
+        return int(round(int(self.params[key]) * self.character.smoothing_scale ** 2))
+
     def tet_vertices(self, frame: Frame) -> np.ndarray | None:
         """The tet-mesh vertices this stage reads or moves in ``frame``, sorted
         (None: all of them); stage 1 skins only those the stages ask for."""

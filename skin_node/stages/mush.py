@@ -57,12 +57,12 @@ class Mush(Stage):
         self._queue = np.empty(n, dtype=np.int64)
 
     def __call__(self, fr: Frame) -> None:
-        passes = int(self.params["mush_passes"])
+        passes = self.passes("mush_passes")
         if not fr.touched or passes == 0:
             fr.counts["mush_vertices"] = 0
             return
         src = np.unique(np.concatenate(fr.touched)).astype(np.int64)
-        rings = int(self.params["mush_rings"])
+        rings = self.rings("mush_rings")
         reached = ring_distance(src, self._ptr, self._adj, self._hops, rings + 1, self._queue)
         zone = np.sort(self._queue[:reached])
         self._hops[zone] = 1 << 30

@@ -111,7 +111,7 @@ class Bulge(Stage):
         n = pull_bulge(X, verts, self.seg, self.r0, self.hold, fr.seg_A, fr.seg_B,
                        self._width[1], fade, self.pairs, allowed)
         fr.counts["bulge_vertices"] = n
-        passes = int(self.params["bulge_smoothing"])
+        passes = self.passes("bulge_smoothing")
         if n and passes:
             # each vertex is drawn towards its own nearest bones, and where
             # they change so does the pull: smooth the pull, not the skin, then
@@ -229,7 +229,7 @@ class Inflate(Stage):
 
     def _inflate(self, fr: Frame, js: list, start: np.ndarray, near: np.ndarray) -> None:
         X = fr.surface
-        H = int(self.params["inflate_rings"])
+        H = self.rings("inflate_rings")
         free = np.ones(len(X))
         if fr.touched and H > 0:
             src = np.concatenate(fr.touched).astype(np.int64)
@@ -309,7 +309,7 @@ class Inflate(Stage):
         # thins where the envelope or contact holds skin: gradually, not in a
         # step), then what smoothing and the envelope left out, past it
         deficit = self._layer(fr, v, t, inc, m, target, deficit, lim, 3, True, start, near)
-        passes = int(self.params["inflate_smoothing"])
+        passes = self.passes("inflate_smoothing")
         if passes:
             laplacian_smooth(X, base, True, ring, loc, lptr, lnbr, lw, 0.5, passes,
                              np.empty((len(ring), 3)), np.empty((len(loc), 3)))
