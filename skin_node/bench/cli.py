@@ -293,12 +293,16 @@ def stage_table(runs: list, method: str = "default") -> str:
     order = rows[0]["stages"].split("+") if rows else []
     stages = ["fk"] + [k for k in order if k in STAGE_NAMES]
     f = _num
-    lines = [f"| {method}: scene | clip | " + " | ".join(stages) + " | total p50 / p90 |",
-             "|---|---|" + "---|" * len(stages) + "---|"]
+    lines = [f"| {method}: scene | clip | " + " | ".join(stages)
+             + " | total p50 / p90 | us a vertex (p50) |",
+             "|---|---|" + "---|" * len(stages) + "---|---|"]
     for r in rows:
+        # the cost of a frame per surface vertex: scenes of different
+        # resolutions compared (a finer mesh should cost no more a vertex)
+        per = 1e3 * r["ms_total_p50"] / r["vertices"] if r.get("vertices") else float("nan")
         lines.append(f"| {r['scene']} | {r['motion']} | "
                      + " | ".join(f(r.get(f"ms_{k}_p50", float("nan"))) for k in stages)
-                     + f" | {f(r['ms_total_p50'])} / {f(r['ms_total_p90'])} |")
+                     + f" | {f(r['ms_total_p50'])} / {f(r['ms_total_p90'])} | {f(per, 3)} |")
     return "\n".join(lines)
 
 
