@@ -120,6 +120,7 @@ class AsyncPipeline:
         self._pending: tuple | None = None
         self._params_pending: dict = {}
         self._busy = False
+        self._held = False
         self._closed = False
         self._generation = 0
         self._started = threading.Event()
@@ -149,9 +150,11 @@ class AsyncPipeline:
         return -1 if last is None else self._given - 1 - last[2]
 
     # ------------------------------------------------------------ the answer
-    def deform(self, q: np.ndarray) -> np.ndarray:
+    def deform(self, q: np.ndarray, hand_over: bool = True) -> np.ndarray:
         """Pose ``q``'s surface now: DQS plus the newest solved correction,
-        carried by each vertex's rotation; the pose goes to the solver.
+        carried by each vertex's rotation; the pose goes to the solver (with
+        ``hand_over=False`` once :meth:`hand_over` is called: an idle solver
+        then starts after the answer is on its way, not beside it).
 
         Returns
         -------
@@ -185,6 +188,7 @@ class AsyncPipeline:
                 self.skipped += 1
             self._pending = (fr.q.copy(), p, self._given)
             self._given += 1
+            self._held = not hand_over
             self._cond.notify_all()
         total = (time.perf_counter() - t0) * 1e3
         self.timings = {"carry": total, **{f"solve_{k}": v for k, v in
@@ -200,7 +204,7 @@ class AsyncPipeline:
         self._started.set()
         while True:
             with self._cond:
-                while self._pending is None and not self._closed:
+                while (self._pending is None or self._held) and not self._closed:
                     self._cond.wait()
                 if self._closed:
                     return
@@ -248,10 +252,19 @@ class AsyncPipeline:
                 self._last = (C, p, seq, D, step, float(step @ step))
                 self.solved += 1
 
+    def hand_over(self) -> None:
+        """Let the solver take the pose the last ``deform(q, hand_over=False)``
+        answered."""
+        with self._cond:
+            self._held = False
+            self._cond.notify_all()
+
     def wait(self, timeout: float | None = None) -> bool:
         """Until the solver has solved the newest pose given (or ``timeout``
-        seconds passed: then False)."""
+        seconds passed: then False); a pose held back is handed over."""
         with self._cond:
+            self._held = False
+            self._cond.notify_all()
             return self._cond.wait_for(
                 lambda: self._closed or (self._pending is None and not self._busy), timeout)
 

@@ -7,6 +7,7 @@ the stages: exact intersecting pairs, sharp folds, roughness, distance."""
 from __future__ import annotations
 
 import os
+import time
 
 import numpy as np
 import pytest
@@ -48,6 +49,22 @@ def test_before_any_solve_the_answer_is_dqs_and_once_solved_the_pipelines(humano
     solved = Pipeline(humanoid).deform(q)
     assert np.abs(again - solved).max() < 1e-12
     assert np.abs(solved - first).max() > 0.01     # the correction is centimetres here
+
+
+def test_a_pose_held_back_is_solved_only_once_handed_over(humanoid, squat):
+    """deform(q, hand_over=False) answers at once and leaves the solver idle
+    (the node publishes first); hand_over() gives it the pose, whose solved
+    skin then comes back as the pipeline's."""
+    q = squat[len(squat) // 2]
+    with AsyncPipeline(humanoid) as ap:
+        ap.deform(q, hand_over=False)
+        time.sleep(0.3)                         # a solve here takes tens of ms
+        assert ap.solved == 0 and ap._pending is not None
+        ap.hand_over()
+        assert ap.wait(SOLVE_S) and ap.solved == 1
+        again = ap.deform(q, hand_over=False)
+        assert ap.wait(SOLVE_S) and ap.solved == 2     # wait() hands a held pose over
+    assert np.abs(again - Pipeline(humanoid).deform(q)).max() < 1e-12
 
 
 def test_a_stream_one_pose_behind_keeps_the_solved_skins_quality(humanoid, squat):
