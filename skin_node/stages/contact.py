@@ -150,7 +150,8 @@ class Contact(Stage):
         Q = matrices_to_dual_quaternions(fr.M)
         # in edges of the skin's resolution or, on finer skin, of the one
         # the counts are given at: the gap stays as wide as the crease's
-        # rounding (the 90k humanoid's squat kept 2.8 times the pairs)
+        # rounding (in edges of its own, the 90k humanoid's squat kept 2.8
+        # times the intersecting pairs over every 8th frame)
         margin = float(self.params["contact_margin"]) * self.character.smoothing_scale * self._edge
         onset = float(self.params["contact_onset"]) * self._sag
         moved = self._moved
