@@ -262,9 +262,8 @@ class AsyncPipeline:
     def wait(self, timeout: float | None = None) -> bool:
         """Until the solver has solved the newest pose given (or ``timeout``
         seconds passed: then False); a pose held back is handed over."""
+        self.hand_over()
         with self._cond:
-            self._held = False
-            self._cond.notify_all()
             return self._cond.wait_for(
                 lambda: self._closed or (self._pending is None and not self._busy), timeout)
 
