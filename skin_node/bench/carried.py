@@ -28,11 +28,11 @@ from ..pipeline import Pipeline
 from .measure import Progress, load_scene, make_motion, parse_scene, scene_metrics
 
 
-def skin_measures(metrics, frame, V: np.ndarray) -> tuple:
-    """(exact intersecting pairs, folds90, roughness) of surface ``V`` posed in ``frame``."""
-    m = metrics.measure(V, frame, crossings=False)
-    pairs = metrics.intersections(V)
-    return int(pairs[0] + pairs[1]), int(m["folds90"]), float(m["roughness"])
+def skin_measures(metrics, V: np.ndarray) -> tuple:
+    """(exact intersecting pairs, folds90, roughness) of surface ``V``."""
+    s = metrics.surface(V)
+    through, crumpled = metrics.intersections(V)
+    return int(through + crumpled), int(s["folds90"]), float(s["roughness"])
 
 
 def compare_skins(scene: str, poses: list, skins: list, progress: bool = False) -> dict:
@@ -50,10 +50,9 @@ def compare_skins(scene: str, poses: list, skins: list, progress: bool = False) 
     bar = Progress(len(poses), f"{scene} measures", progress)
     for q, V in zip(poses, skins):
         R = ref.deform(q)[:n]
-        fr = ref.last_frame
         dev.append(float(np.linalg.norm(V[:n] - R, axis=1).max()) * 1e3)
         for key, X in (("answer", V[:n]), ("solved", R), ("dqs", dqs.deform(q)[:n])):
-            sums[key] += skin_measures(metrics, fr, X)
+            sums[key] += skin_measures(metrics, X)
         bar.update()
     bar.close()
     out = {"frames_measured": len(poses),
