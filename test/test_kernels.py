@@ -762,3 +762,46 @@ def test_region_incidence_lists_each_vertex_triangles_in_order():
         want = [r for r, t in enumerate(tris) if v in F[t]]
         assert list(rows[ptr[k]:ptr[k + 1]]) == want
     assert ptr[-1] == np.isin(F[tris], verts).sum()
+
+
+def _grid(n=21, h=0.01):
+    """A flat n x n grid of spacing h (one-ring CSR over its triangles)."""
+    from skin_node.rigging.build import one_ring
+    x, y = np.meshgrid(np.arange(n) * h, np.arange(n) * h, indexing="ij")
+    V = np.stack([x.ravel(), y.ravel(), np.zeros(n * n)], axis=1)
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    F = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    ptr, adj = one_ring(F, len(V))
+    return V, F, ptr, adj
+
+
+def test_relief_cap_cuts_a_spike_to_the_limit_and_leaves_a_layer_alone():
+    """One vertex moved 20 mm up while its ring moved 2 mm: after the cap its
+    move stands out of its ring's mean by at most the limit (2 mm here), the
+    vertices far from it are untouched, and a smooth layer (every vertex up
+    by a smooth bump, relief far below the limit) is left exactly as it was."""
+    from skin_node.kernels.smoothing import cap_relief
+    V, F, ptr, adj = _grid()
+    n = len(V)
+    centre = 10 * 21 + 10
+    X = V.copy()
+    X[:, 2] += 0.002 * np.exp(-np.sum((V - V[centre]) ** 2, axis=1) / 0.03 ** 2)
+    X[centre, 2] = 0.02
+    limit = np.full(n, 0.002)
+    allv = np.arange(n, dtype=np.int64)
+    before = X.copy()
+    assert cap_relief(X, V, allv, ptr, adj, limit, 4) > 0
+    D = X - V
+    ring = adj[ptr[centre]:ptr[centre + 1]]
+    relief = np.linalg.norm(D[centre] - D[ring].mean(axis=0))
+    assert relief <= 0.002 * (1 + 1e-6), relief
+    assert 0.003 < X[centre, 2] < 0.006, X[centre, 2]        # cut from 20 mm to about 4
+    far = np.linalg.norm(V - V[centre], axis=1) > 0.035
+    assert np.array_equal(X[far], before[far])
+    # a smooth layer has nothing to cut
+    Y = V.copy()
+    Y[:, 2] += 0.005 * np.exp(-np.sum((V - V[centre]) ** 2, axis=1) / 0.05 ** 2)
+    Y0 = Y.copy()
+    assert cap_relief(Y, V, allv, ptr, adj, limit, 4) == 0
+    assert np.array_equal(Y, Y0)

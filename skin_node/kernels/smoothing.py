@@ -209,3 +209,49 @@ def gather_weights(verts, ptr, w, lptr):
         for b in range(ptr[i], ptr[i + 1]):
             out[o + b - ptr[i]] = w[b]
     return out
+
+
+@nb.njit(cache=True, nogil=True)
+def cap_relief(X, base, verts, ptr, nbr, limit, passes):
+    """Limit how far a stage's displacement ``D = X - base`` of each of
+    ``verts`` stands out from its neighbours': ``|D_i - mean_ring(D)|`` at
+    most ``limit[i]``, the excess taken off along the difference, in place on
+    ``X``, Gauss-Seidel (a vertex sees its neighbours' capped moves), up to
+    ``passes`` sweeps, stopping after one that changed nothing. A spike (one
+    vertex moved far more than the skin around it) is cut to a bump of
+    ``limit``; a layer moving evenly is left as it is. Returns how many
+    vertices the sweeps changed (a vertex changed in two sweeps counts twice).
+    """
+    changed = 0
+    for _ in range(passes):
+        now = 0
+        for a in range(verts.shape[0]):
+            i = verts[a]
+            k = ptr[i + 1] - ptr[i]
+            if k == 0:
+                continue
+            mx = 0.0
+            my = 0.0
+            mz = 0.0
+            for b in range(ptr[i], ptr[i + 1]):
+                u = nbr[b]
+                mx += X[u, 0] - base[u, 0]
+                my += X[u, 1] - base[u, 1]
+                mz += X[u, 2] - base[u, 2]
+            mx /= k
+            my /= k
+            mz /= k
+            rx = X[i, 0] - base[i, 0] - mx
+            ry = X[i, 1] - base[i, 1] - my
+            rz = X[i, 2] - base[i, 2] - mz
+            r = np.sqrt(rx * rx + ry * ry + rz * rz)
+            if r > limit[i] * (1.0 + 1e-9):
+                s = limit[i] / r
+                X[i, 0] = base[i, 0] + mx + rx * s
+                X[i, 1] = base[i, 1] + my + ry * s
+                X[i, 2] = base[i, 2] + mz + rz * s
+                now += 1
+        changed += now
+        if now == 0:
+            break
+    return changed

@@ -6,6 +6,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..kernels.smoothing import cap_relief
+from ..kernels.topology import ring_distance
+
+#: Sweeps of :meth:`Stage.cap_relief` (a spike is cut in the first; the
+#: others settle the ring around it).
+RELIEF_PASSES = 4
+
 
 @dataclass
 class Frame:
@@ -92,6 +99,7 @@ class Stage:
         self.params = params
         #: the skin weights this pipeline skins with (``weight_scheme``)
         self.weights = character.rig.weights(params["weight_scheme"])
+        self._relief = None
 
     def __call__(self, frame: Frame) -> None:  # pragma: no cover - interface
         raise NotImplementedError
@@ -105,6 +113,27 @@ class Stage:
         """Parameter ``key``, a count of Laplacian passes, at this character's
         resolution (grown by the square of its smoothing scale)."""
         return int(round(int(self.params[key]) * self.character.smoothing_scale ** 2))
+
+    def cap_relief(self, X: np.ndarray, base: np.ndarray, verts: np.ndarray,
+                   scale: float = 1.0) -> int:
+        """Cut the spikes of this stage's move ``X - base`` of ``verts`` and
+        their one ring: no vertex's move stands out from its neighbours' mean
+        by more than ``scale`` times ``relief_limit`` of its mean edge
+        (:func:`~skin_node.kernels.smoothing.cap_relief`, up to
+        :data:`RELIEF_PASSES` sweeps). Returns the vertices it changed."""
+        alpha = float(self.params["relief_limit"]) * scale
+        if alpha <= 0.0 or not len(verts):
+            return 0
+        ch = self.character
+        ptr, adj = ch.rig.adj_ptr, ch.rig.adj
+        n = len(X)
+        if self._relief is None:
+            self._relief = (np.full(n, 1 << 30, dtype=np.int64), np.empty(n, dtype=np.int64))
+        hops, queue = self._relief
+        reached = ring_distance(np.asarray(verts, dtype=np.int64), ptr, adj, hops, 2, queue)
+        zone = np.sort(queue[:reached])
+        hops[zone] = 1 << 30
+        return cap_relief(X, base, zone, ptr, adj, alpha * ch.mean_edges, RELIEF_PASSES)
 
     def tet_vertices(self, frame: Frame) -> np.ndarray | None:
         """The tet-mesh vertices this stage reads or moves in ``frame``, sorted
