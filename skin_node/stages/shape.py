@@ -2,6 +2,8 @@
 volume kept."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..kernels.shape import (cone_volume_gradient, enclosed_volume, envelope_clamp,
@@ -11,6 +13,7 @@ from ..kernels.shape import (cone_volume_gradient, enclosed_volume, envelope_cla
 from ..kernels.smoothing import gather_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from .base import Frame, KeyedCache, Stage
+from .untangle import CoarseCrossings
 
 
 def _union(verts: list, on: np.ndarray, n: int) -> np.ndarray:
@@ -21,6 +24,30 @@ def _union(verts: list, on: np.ndarray, n: int) -> np.ndarray:
     for j in np.flatnonzero(on):
         mask[verts[j]] = True
     return np.flatnonzero(mask).astype(np.int64)
+
+
+def _unit_normals(X: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """The unit normals of triangles ``T`` (k, 3) of ``X``."""
+    n = np.cross(X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]])
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+
+
+def _dihedral(X: np.ndarray, Ta: np.ndarray, Tb: np.ndarray) -> np.ndarray:
+    """The angles (radians) between the normals of triangles ``Ta`` and
+    ``Tb`` (k, 3) of ``X``: 0 where two triangles lie flat."""
+    c = (_unit_normals(X, Ta) * _unit_normals(X, Tb)).sum(axis=1)
+    return np.arccos(np.clip(c, -1.0, 1.0))
+
+
+def _edge_faces(F: np.ndarray):
+    """The pairs of triangles of ``F`` that share an edge, as two arrays
+    (an edge of three triangles gives two pairs)."""
+    E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    f = np.tile(np.arange(len(F), dtype=np.int64), 3)
+    o = np.lexsort((E[:, 1], E[:, 0]))
+    E, f = E[o], f[o]
+    i = np.flatnonzero((E[1:] == E[:-1]).all(axis=1))
+    return f[i], f[i + 1]
 
 
 def _csr(verts: list, values: list):
@@ -133,6 +160,14 @@ CLEAR_SHARE = 0.5
 #: but cost the humanoid's squat 10 ms more at the 90th percentile (27.5 ms
 #: against 12.5 for the stage with the cap off, one round 17.6).
 RELIEF_ROUNDS = 1
+#: Coarse skin (:class:`~skin_node.stages.untangle.CoarseCrossings`):
+#: inflation's layers are withheld from the corners of two triangles whose
+#: edge they bent by more than WITHHOLD_BEND degrees, and of a triangle they
+#: ran through another part's, fading in over WITHHOLD_RINGS rings round
+#: them, for up to WITHHOLD_ROUNDS rounds (see :meth:`Inflate.__call__`).
+WITHHOLD_BEND = 30.0
+WITHHOLD_RINGS = 2
+WITHHOLD_ROUNDS = 2
 
 
 class Inflate(Stage):
@@ -214,6 +249,14 @@ class Inflate(Stage):
         self._near = np.empty(len(V))
         self._resolved = character.resolved
         self.V0 = V
+        self._cross = CoarseCrossings(character)
+        if self._cross:
+            # the pairs of coarse skin's triangles that share an edge
+            fa, fb = _edge_faces(F)
+            coarse = np.zeros(len(F), dtype=np.bool_)
+            coarse[self._cross.coarse] = True
+            keep = coarse[fa] | coarse[fb]
+            self._efaces = (fa[keep], fb[keep])
 
     def __call__(self, fr: Frame) -> None:
         js = [j for j in np.flatnonzero(fr.bent) if len(self.verts[j])]
@@ -232,6 +275,32 @@ class Inflate(Stage):
         else:
             near = self._far
         free = self._free(fr)
+        ratios, capped = self._inflate(fr, js, free, start, near)
+        if self._cross:
+            # on coarse skin (a triangle spans much of a limb's curve) even
+            # layers bend edges sharply beside a crease and run skin through
+            # the other side's: withhold them where they did (and
+            # WITHHOLD_RINGS rings round, fading in) and lay the volumes
+            # again on the skin left
+            withheld = 0
+            for _ in range(WITHHOLD_ROUNDS):
+                spoiled = self._spoiled(X, start)
+                if not len(spoiled):
+                    break
+                withheld += len(spoiled)
+                free = free * self._taper(spoiled)
+                X[:] = start
+                ratios, capped = self._inflate(fr, js, free, start, near)
+            fr.counts["inflate_withheld"] = withheld
+        fr.counts["inflate_relief_capped"] = capped
+        fr.counts["region_volume_min"] = min(1.0, *ratios.values())
+
+    def _inflate(self, fr: Frame, js: list, free: np.ndarray, start: np.ndarray,
+                 near: np.ndarray):
+        """The whole mesh's volume and the bent joints' regions' (skin at
+        ``start`` on entry), their spikes cut; returns the regions' volume
+        ratios and how many vertices the cut changed."""
+        X = fr.surface
         if float(self.params["inflate_slack"]) < 1.0:
             self._whole(fr, free, start, near)
         ratios = self._regions(fr, js, free, start, near)
@@ -253,8 +322,35 @@ class Inflate(Stage):
             cut = (X != before).any(axis=1)
             ratios.update(self._regions(fr, [j for j in js if cut[self.verts[j]].any()],
                                         free, start, near))
-        fr.counts["inflate_relief_capped"] = capped
-        fr.counts["region_volume_min"] = min(1.0, *ratios.values())
+        return ratios, capped
+
+    def _spoiled(self, X: np.ndarray, start: np.ndarray) -> np.ndarray:
+        """The vertices inflation moved (from ``start``) at a corner of two
+        coarse triangles whose edge it bent by more than WITHHOLD_BEND
+        degrees, or of a coarse triangle it ran through another part's."""
+        moved = (X != start).any(axis=1)
+        hit = np.zeros(len(X), dtype=np.bool_)
+        fa, fb = self._efaces
+        on = moved[self.F[fa]].any(axis=1) | moved[self.F[fb]].any(axis=1)
+        fa, fb = fa[on], fb[on]
+        opened = _dihedral(X, self.F[fa], self.F[fb]) - _dihedral(start, self.F[fa], self.F[fb])
+        bad = opened > math.radians(WITHHOLD_BEND)
+        hit[self.F[fa[bad]]] = True
+        hit[self.F[fb[bad]]] = True
+        tris = self._cross.near(moved)
+        hit[self.F[self._cross.crossed(X, tris).ravel()]] = True
+        return np.flatnonzero(hit & moved).astype(np.int64)
+
+    def _taper(self, src: np.ndarray) -> np.ndarray:
+        """0 on ``src``, rising to 1 over WITHHOLD_RINGS rings round it."""
+        H = WITHHOLD_RINGS
+        out = np.ones(len(self.V0))
+        reached = ring_distance(src, self._ptr, self._adj, self._hops, H + 1, self._queue)
+        q = self._queue[:reached]
+        x = self._hops[q] / (H + 1.0)
+        out[q] = x * x * (3.0 - 2.0 * x)
+        self._hops[q] = 1 << 30
+        return out
 
     def _free(self, fr: Frame) -> np.ndarray:
         """How free each vertex is to swell: 0 on skin in contact, rising to 1

@@ -11,6 +11,70 @@ from ..kernels.untangle import push_apart
 from .base import Frame, Stage
 
 
+class CoarseCrossings:
+    """The exact crossing test of coarse skin's triangles against every
+    triangle of another part.
+
+    A triangle's part is that of two of its corners, else its first's; the
+    coarse parts are those most of whose skin is coarse
+    (:attr:`~skin_node.Character.resolved` below 1: CesiumMan's, none of the
+    built-in characters'), whose triangles :attr:`coarse` lists. Falsy when
+    there are none, and then it builds nothing."""
+
+    def __init__(self, character):
+        V, F = character.V, np.ascontiguousarray(character.F, dtype=np.int64)
+        self.F = F
+        part = character.rig.part
+        p = part[F]
+        self.fpart = np.ascontiguousarray(np.where(p[:, 1] == p[:, 2], p[:, 1], p[:, 0]))
+        # the coarse parts: most of their skin is (the humanoid's and the
+        # arm's have none; a few coarse vertices at a fine limb's knee or
+        # hand are the contact's to keep apart)
+        J = character.skeleton.n_joints
+        coarse = np.array([np.median(character.resolved[part == j]) < 1.0
+                           if np.any(part == j) else False for j in range(J)])
+        self.coarse = np.flatnonzero(coarse[self.fpart])
+        # the tree over every triangle that the pair counts search too
+        self._si = SelfIntersections(V, F, 0.0) if len(self.coarse) else None
+        self.inq = np.zeros(len(F), dtype=np.bool_)
+        self._out = np.empty((1024, 2), dtype=np.int64)
+
+    def __bool__(self) -> bool:
+        return self._si is not None
+
+    def near(self, mask: np.ndarray) -> np.ndarray:
+        """The coarse triangles with a corner in ``mask`` (n,) bool."""
+        return self.coarse[mask[self.F[self.coarse]].any(axis=1)]
+
+    def pairs(self, X: np.ndarray, query: np.ndarray, inq: np.ndarray,
+              full: bool) -> np.ndarray:
+        """The pairs with a triangle of ``query`` (marked in ``inq``), see
+        :func:`~skin_node.kernels.intersect.crossing_pairs`; ``full`` refits
+        every box, else only those a moved corner grows."""
+        si = self._si
+        t = si.tree
+        fit_tree(X, t, si.fit, full)
+        lo, hi, tlo, thi, _ = si.fit
+        while True:
+            n = crossing_pairs(X, self.F, query, inq, self.fpart, t.roots, t.child,
+                               t.first, t.count, t.slot, si.tris, lo, hi,
+                               tlo, thi, self._out)
+            if n <= len(self._out):
+                return self._out[:n].copy()
+            self._out = np.empty((2 * n, 2), dtype=np.int64)
+
+    def crossed(self, X: np.ndarray, query: np.ndarray) -> np.ndarray:
+        """The pairs (k, 2) of the triangles ``query`` with another part's,
+        every box refit."""
+        if not len(query):
+            return np.zeros((0, 2), dtype=np.int64)
+        self.inq[query] = True
+        try:
+            return self.pairs(X, query, self.inq, True)
+        finally:
+            self.inq[query] = False
+
+
 class Untangle(Stage):
     """Triangles of two parts that pass through each other, on coarse skin,
     are pushed apart.
@@ -47,30 +111,16 @@ class Untangle(Stage):
 
     def __init__(self, character, params):
         super().__init__(character, params)
-        V, F = character.V, np.ascontiguousarray(character.F, dtype=np.int64)
-        self.F = F
-        # each triangle's part: that of two of its corners, else its first's
-        part = character.rig.part
-        p = part[F]
-        self.fpart = np.ascontiguousarray(np.where(p[:, 1] == p[:, 2], p[:, 1], p[:, 0]))
-        # the coarse parts: most of their skin is (the humanoid's and the
-        # arm's have none; a few coarse vertices at a fine limb's knee or
-        # hand are the contact's to keep apart)
-        J = character.skeleton.n_joints
-        coarse = np.array([np.median(character.resolved[part == j]) < 1.0
-                           if np.any(part == j) else False for j in range(J)])
-        self.coarse = np.flatnonzero(coarse[self.fpart])
+        self._cross = CoarseCrossings(character)
+        self.F, self.coarse = self._cross.F, self._cross.coarse
         self._edge = character.mean_edges
-        # the tree over every triangle that the pair counts search too
-        self._si = SelfIntersections(V, F, 0.0) if len(self.coarse) else None
-        if self._si is None:
+        if not self._cross:
             return          # nothing coarse: the stage tests nothing
-        n, m = len(V), len(F)
-        self._inq = np.zeros(m, dtype=np.bool_)
+        n, m = len(character.V), len(self.F)
+        self._inq = self._cross.inq
         self._in2 = np.zeros(m, dtype=np.bool_)
-        self._vf_ptr, self._vf = vertex_faces(F, n)
+        self._vf_ptr, self._vf = vertex_faces(self.F, n)
         self._near = np.zeros(n, dtype=np.bool_)
-        self._out = np.empty((1024, 2), dtype=np.int64)
         self._disp, self._count = np.zeros((n, 3)), np.zeros(n, dtype=np.int64)
         self._touched = np.empty(n, dtype=np.int64)
 
@@ -82,24 +132,7 @@ class Untangle(Stage):
             near |= fr.clearance < float(self.params["untangle_reach"]) * self._edge
         for t in fr.touched:
             near[t] = True
-        return self.coarse[near[self.F[self.coarse]].any(axis=1)]
-
-    def _pairs(self, X: np.ndarray, query: np.ndarray, inq: np.ndarray,
-               full: bool) -> np.ndarray:
-        """The pairs with a triangle of ``query`` (marked in ``inq``), see
-        :func:`~skin_node.kernels.intersect.crossing_pairs`; ``full`` refits
-        every box, else only those a moved corner grows."""
-        si = self._si
-        t = si.tree
-        fit_tree(X, t, si.fit, full)
-        lo, hi, tlo, thi, _ = si.fit
-        while True:
-            n = crossing_pairs(X, self.F, query, inq, self.fpart, t.roots, t.child,
-                               t.first, t.count, t.slot, si.tris, lo, hi,
-                               tlo, thi, self._out)
-            if n <= len(self._out):
-                return self._out[:n].copy()
-            self._out = np.empty((2 * n, 2), dtype=np.int64)
+        return self._cross.near(near)
 
     def _again(self, X: np.ndarray, P: np.ndarray, moved: np.ndarray) -> np.ndarray:
         """The pairs after a push that moved vertices ``moved``: those of ``P``
@@ -108,14 +141,14 @@ class Untangle(Stage):
         around = np.unique(np.concatenate(
             [self._vf[self._vf_ptr[v]:self._vf_ptr[v + 1]] for v in moved]))
         self._in2[around] = True
-        new = self._pairs(X, around, self._in2, False)
+        new = self._cross.pairs(X, around, self._in2, False)
         stand = P[~(self._in2[P[:, 0]] | self._in2[P[:, 1]])]
         self._in2[around] = False
         new = new[self._inq[new[:, 0]] | self._inq[new[:, 1]]]
         return np.concatenate([stand, new])
 
     def __call__(self, fr: Frame) -> None:
-        if self._si is None:
+        if not self._cross:
             return
         query = self._query(fr)
         fr.counts["untangle_pairs"] = fr.counts["untangle_moves"] = 0
@@ -126,7 +159,7 @@ class Untangle(Stage):
         depth = float(self.params["untangle_depth"]) * self._edge
         self._inq[query] = True
         parted = []
-        P = self._pairs(X, query, self._inq, True)
+        P = self._cross.pairs(X, query, self._inq, True)
         fr.counts["untangle_pairs"] += len(P)
         for _ in range(int(self.params["untangle_rounds"])):
             if not len(P):
