@@ -53,6 +53,15 @@ def test_parse_scene_and_method():
         parse_method('{"stages": ["lbs", "warp"]}')
 
 
+def test_chart_names_of_scenes_given_as_files():
+    """A scene given as a character file's path names its charts by the
+    file's own name: its folders made the chart's path a missing folder."""
+    from skin_node.bench.cli import chart_name
+    assert chart_name("humanoid:24000") == "humanoid_24000"
+    assert chart_name("/data/rigged/CesiumMan.glb") == "CesiumMan.glb"
+    assert chart_name("rigged/Fox Rig.gltf:3000") == "Fox_Rig.gltf_3000"
+
+
 def test_segment_distance():
     P = np.array([[0.5, 1.0, 0.0], [-1.0, 0.0, 0.0], [3.0, 0.0, 0.0]])
     A, B = np.zeros((3, 3)), np.tile([2.0, 0.0, 0.0], (3, 1))

@@ -28,6 +28,7 @@ import json
 import math
 import os
 import platform
+import re
 import subprocess
 import sys
 import tempfile
@@ -65,6 +66,13 @@ def _pipelines(values) -> list:
     for v in values or [DEFAULT_PIPELINES]:
         out.extend([v] if v.lstrip().startswith("{") else _list(v))
     return [parse_method(v) for v in out]
+
+
+def chart_name(scene: str) -> str:
+    """A scene as part of a file name: a character file's own name without
+    its folders (a path's separators made a chart's name a missing
+    folder), ':' and anything else but letters, digits, '.', '-' as '_'."""
+    return re.sub(r"[^A-Za-z0-9._-]", "_", os.path.basename(scene.rstrip("/\\")))
 
 
 def _clean(v):
@@ -197,13 +205,13 @@ def draw_run_charts(result: dict, out: Path) -> list:
     for sc, runs in by_scene.items():
         clips = sorted({r["motion"] for r in runs})
         paths.append(charts.speed_accuracy(
-            runs, out / f"speed_accuracy_{sc.replace(':', '_')}.png",
+            runs, out / f"speed_accuracy_{chart_name(sc)}.png",
             f"{sc} ({', '.join(clips)}): speed against accuracy; lower is better, "
             "lines = Pareto fronts"))
     for sc, d in result["frames"].items():
         sweeps = {m: d[m] for m in ("elbow_sweep", "twist_sweep") if m in d}
         if sweeps:
-            paths.append(charts.pose_sweeps(sweeps, out / f"pose_sweeps_{sc.replace(':', '_')}.png",
+            paths.append(charts.pose_sweeps(sweeps, out / f"pose_sweeps_{chart_name(sc)}.png",
                                             f"{sc}: volume and deviation over pose sweeps"))
     return paths
 
@@ -456,7 +464,7 @@ def report(out: Path, quick: bool = False, ros: bool = True, progress: bool = Tr
     write_csv(flat, out / "pose_sweeps.csv")
     for sc in scenes:
         charts.speed_accuracy([r for r in main["runs"] if r["scene"] == sc],
-                              out / f"speed_accuracy_{sc.replace(':', '_')}.png",
+                              out / f"speed_accuracy_{chart_name(sc)}.png",
                               f"{sc}, all clips: speed against accuracy (lower is better)")
     charts.speed_accuracy(
         [r for r in iters["runs"]] + [r for r in main["runs"] if r["scene"] == sweep_scene
