@@ -805,3 +805,30 @@ def test_relief_cap_cuts_a_spike_to_the_limit_and_leaves_a_layer_alone():
     Y0 = Y.copy()
     assert cap_relief(Y, V, allv, ptr, adj, limit, 4) == 0
     assert np.array_equal(Y, Y0)
+
+
+def test_bent_edges_marks_the_corners_of_an_edge_bent_past_the_limit():
+    """Two triangles on a hinge along x: folding one up by 40 degrees marks
+    all four corners at a 30-degree limit, by 20 degrees none; a hinge
+    whose corners did not move is not looked at."""
+    import math
+    from skin_node.kernels.shape import bent_edges
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -1, 0]])
+    F = np.array([[0, 1, 2], [1, 0, 3]])
+    fa, fb = np.array([0]), np.array([1])
+
+    def fold(deg):
+        X = V.copy()
+        a = math.radians(deg)
+        X[3] = [0.5, -math.cos(a), math.sin(a)]
+        return X
+
+    moved = np.array([False, False, False, True])
+    for deg, n in ((40, 1), (20, 0)):
+        hit = np.zeros(4, dtype=np.bool_)
+        assert bent_edges(fold(deg), V, F, fa, fb, moved, math.radians(30), hit) == n
+        assert hit.sum() == 4 * n
+    hit = np.zeros(4, dtype=np.bool_)
+    assert bent_edges(fold(40), V, F, fa, fb, np.zeros(4, np.bool_), math.radians(30), hit) == 0
+    # bent back towards flat: the angle shrank, nothing to mark
+    assert bent_edges(V, fold(40), F, fa, fb, moved, math.radians(30), hit) == 0

@@ -504,3 +504,40 @@ def split_fade(out, jptr, jverts, jsplit, joint_fade):
             x = jsplit[k] * f
             if x > out[i]:
                 out[i] = x
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _face_normal(X, F, f):
+    a, b, c = F[f, 0], F[f, 1], F[f, 2]
+    ux, uy, uz = X[b, 0] - X[a, 0], X[b, 1] - X[a, 1], X[b, 2] - X[a, 2]
+    vx, vy, vz = X[c, 0] - X[a, 0], X[c, 1] - X[a, 1], X[c, 2] - X[a, 2]
+    nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    s = math.sqrt(nx * nx + ny * ny + nz * nz)
+    s = 1.0 / s if s > 1e-30 else 0.0
+    return nx * s, ny * s, nz * s
+
+
+@nb.njit(cache=True, nogil=True)
+def bent_edges(X, before, F, fa, fb, moved, limit, hit):
+    """Marks in ``hit`` (n,) bool the corners of the triangle pairs ``fa[k]``,
+    ``fb[k]`` (sharing an edge) with a corner in ``moved`` whose dihedral
+    angle (between their normals) grew by more than ``limit`` radians from
+    ``before`` to ``X``; returns how many pairs did."""
+    m = 0
+    for k in range(fa.shape[0]):
+        f, g = fa[k], fb[k]
+        if not (moved[F[f, 0]] or moved[F[f, 1]] or moved[F[f, 2]]
+                or moved[F[g, 0]] or moved[F[g, 1]] or moved[F[g, 2]]):
+            continue
+        ax, ay, az = _face_normal(X, F, f)
+        bx, by, bz = _face_normal(X, F, g)
+        now = math.acos(min(1.0, max(-1.0, ax * bx + ay * by + az * bz)))
+        ax, ay, az = _face_normal(before, F, f)
+        bx, by, bz = _face_normal(before, F, g)
+        was = math.acos(min(1.0, max(-1.0, ax * bx + ay * by + az * bz)))
+        if now - was > limit:
+            m += 1
+            for r in range(3):
+                hit[F[f, r]] = True
+                hit[F[g, r]] = True
+    return m

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from ..kernels.shape import (cone_volume_gradient, enclosed_volume, envelope_clamp,
+from ..kernels.shape import (bent_edges, cone_volume_gradient, enclosed_volume, envelope_clamp,
                              clearance_caps, envelope_room, hold_clear, keep_region_volume,
                              limit_bulge, parting_pairs, pull_bulge, region_incidence,
                              split_fade)
@@ -24,19 +24,6 @@ def _union(verts: list, on: np.ndarray, n: int) -> np.ndarray:
     for j in np.flatnonzero(on):
         mask[verts[j]] = True
     return np.flatnonzero(mask).astype(np.int64)
-
-
-def _unit_normals(X: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """The unit normals of triangles ``T`` (k, 3) of ``X``."""
-    n = np.cross(X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]])
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-
-
-def _dihedral(X: np.ndarray, Ta: np.ndarray, Tb: np.ndarray) -> np.ndarray:
-    """The angles (radians) between the normals of triangles ``Ta`` and
-    ``Tb`` (k, 3) of ``X``: 0 where two triangles lie flat."""
-    c = (_unit_normals(X, Ta) * _unit_normals(X, Tb)).sum(axis=1)
-    return np.arccos(np.clip(c, -1.0, 1.0))
 
 
 def _edge_faces(F: np.ndarray):
@@ -330,13 +317,7 @@ class Inflate(Stage):
         degrees, or of a coarse triangle it ran through another part's."""
         moved = (X != start).any(axis=1)
         hit = np.zeros(len(X), dtype=np.bool_)
-        fa, fb = self._efaces
-        on = moved[self.F[fa]].any(axis=1) | moved[self.F[fb]].any(axis=1)
-        fa, fb = fa[on], fb[on]
-        opened = _dihedral(X, self.F[fa], self.F[fb]) - _dihedral(start, self.F[fa], self.F[fb])
-        bad = opened > math.radians(WITHHOLD_BEND)
-        hit[self.F[fa[bad]]] = True
-        hit[self.F[fb[bad]]] = True
+        bent_edges(X, start, self.F, *self._efaces, moved, math.radians(WITHHOLD_BEND), hit)
         tris = self._cross.near(moved)
         hit[self.F[self._cross.crossed(X, tris).ravel()]] = True
         return np.flatnonzero(hit & moved).astype(np.int64)
