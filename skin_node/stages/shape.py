@@ -278,7 +278,7 @@ class Inflate(Stage):
                 if not len(spoiled):
                     break
                 withheld += len(spoiled)
-                free = free * self._taper(spoiled)
+                free = free * self._ramp(spoiled, WITHHOLD_RINGS)
                 X[:] = start
                 ratios, capped = self._inflate(fr, js, free, start, near)
             fr.counts["inflate_withheld"] = withheld
@@ -325,9 +325,17 @@ class Inflate(Stage):
         hit[self.F[self._cross.crossed(X, tris).ravel()]] = True
         return np.flatnonzero(hit & moved).astype(np.int64)
 
-    def _taper(self, src: np.ndarray) -> np.ndarray:
-        """0 on ``src``, rising to 1 over WITHHOLD_RINGS rings round it."""
-        H = WITHHOLD_RINGS
+    def _free(self, fr: Frame) -> np.ndarray:
+        """How free each vertex is to swell: 0 on skin in contact, rising to 1
+        over ``inflate_rings`` rings round it."""
+        H = self.rings("inflate_rings")
+        if fr.touched and H > 0:
+            return self._ramp(np.concatenate(fr.touched).astype(np.int64), H)
+        return np.ones(len(fr.surface))
+
+    def _ramp(self, src: np.ndarray, H: int) -> np.ndarray:
+        """0 on vertices ``src``, rising smoothly to 1 over ``H`` rings round
+        them, 1 beyond."""
         out = np.ones(len(self.V0))
         reached = ring_distance(src, self._ptr, self._adj, self._hops, H + 1, self._queue)
         q = self._queue[:reached]
@@ -335,20 +343,6 @@ class Inflate(Stage):
         out[q] = x * x * (3.0 - 2.0 * x)
         self._hops[q] = 1 << 30
         return out
-
-    def _free(self, fr: Frame) -> np.ndarray:
-        """How free each vertex is to swell: 0 on skin in contact, rising to 1
-        over ``inflate_rings`` rings round it."""
-        H = self.rings("inflate_rings")
-        free = np.ones(len(fr.surface))
-        if fr.touched and H > 0:
-            src = np.concatenate(fr.touched).astype(np.int64)
-            reached = ring_distance(src, self._ptr, self._adj, self._hops, H + 1, self._queue)
-            q = self._queue[:reached]
-            x = self._hops[q] / (H + 1.0)
-            free[q] = x * x * (3.0 - 2.0 * x)
-            self._hops[q] = 1 << 30
-        return free
 
     def _regions(self, fr: Frame, js: list, free: np.ndarray, start: np.ndarray,
                  near: np.ndarray) -> dict:
