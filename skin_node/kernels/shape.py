@@ -6,6 +6,8 @@ import math
 import numba as nb
 import numpy as np
 
+from .intersect import _normal
+
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def _closest_on_segment(px, py, pz, A, B, s):
@@ -507,14 +509,15 @@ def split_fade(out, jptr, jverts, jsplit, joint_fade):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _face_normal(X, F, f):
-    a, b, c = F[f, 0], F[f, 1], F[f, 2]
-    ux, uy, uz = X[b, 0] - X[a, 0], X[b, 1] - X[a, 1], X[b, 2] - X[a, 2]
-    vx, vy, vz = X[c, 0] - X[a, 0], X[c, 1] - X[a, 1], X[c, 2] - X[a, 2]
-    nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
-    s = math.sqrt(nx * nx + ny * ny + nz * nz)
-    s = 1.0 / s if s > 1e-30 else 0.0
-    return nx * s, ny * s, nz * s
+def _dihedral(X, F, f, g):
+    """The angle (radians) between the normals of triangles ``f`` and ``g``
+    (a right angle where either has no area)."""
+    ax, ay, az = _normal(X, F[f, 0], F[f, 1], F[f, 2])
+    bx, by, bz = _normal(X, F[g, 0], F[g, 1], F[g, 2])
+    la = math.sqrt(ax * ax + ay * ay + az * az)
+    lb = math.sqrt(bx * bx + by * by + bz * bz)
+    c = (ax * bx + ay * by + az * bz) / (la * lb) if la > 1e-30 and lb > 1e-30 else 0.0
+    return math.acos(min(1.0, max(-1.0, c)))
 
 
 @nb.njit(cache=True, nogil=True)
@@ -529,13 +532,7 @@ def bent_edges(X, before, F, fa, fb, moved, limit, hit):
         if not (moved[F[f, 0]] or moved[F[f, 1]] or moved[F[f, 2]]
                 or moved[F[g, 0]] or moved[F[g, 1]] or moved[F[g, 2]]):
             continue
-        ax, ay, az = _face_normal(X, F, f)
-        bx, by, bz = _face_normal(X, F, g)
-        now = math.acos(min(1.0, max(-1.0, ax * bx + ay * by + az * bz)))
-        ax, ay, az = _face_normal(before, F, f)
-        bx, by, bz = _face_normal(before, F, g)
-        was = math.acos(min(1.0, max(-1.0, ax * bx + ay * by + az * bz)))
-        if now - was > limit:
+        if _dihedral(X, F, f, g) - _dihedral(before, F, f, g) > limit:
             m += 1
             for r in range(3):
                 hit[F[f, r]] = True
