@@ -12,6 +12,7 @@ from ..kernels.shape import (bent_edges, cone_volume_gradient, enclosed_volume, 
                              split_fade)
 from ..kernels.smoothing import gather_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
+from ..metrics import interior_edges
 from .base import Frame, KeyedCache, Stage
 from .untangle import CoarseCrossings
 
@@ -24,17 +25,6 @@ def _union(verts: list, on: np.ndarray, n: int) -> np.ndarray:
     for j in np.flatnonzero(on):
         mask[verts[j]] = True
     return np.flatnonzero(mask).astype(np.int64)
-
-
-def _edge_faces(F: np.ndarray):
-    """The pairs of triangles of ``F`` that share an edge, as two arrays
-    (an edge of three triangles gives two pairs)."""
-    E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
-    f = np.tile(np.arange(len(F), dtype=np.int64), 3)
-    o = np.lexsort((E[:, 1], E[:, 0]))
-    E, f = E[o], f[o]
-    i = np.flatnonzero((E[1:] == E[:-1]).all(axis=1))
-    return f[i], f[i + 1]
 
 
 def _csr(verts: list, values: list):
@@ -242,7 +232,7 @@ class Inflate(Stage):
         self._cross = CoarseCrossings(character)
         if self._cross:
             # the pairs of coarse skin's triangles that share an edge
-            fa, fb = _edge_faces(F)
+            fa, fb, _ = interior_edges(F)
             coarse = np.zeros(len(F), dtype=np.bool_)
             coarse[self._cross.coarse] = True
             keep = coarse[fa] | coarse[fb]
