@@ -171,7 +171,7 @@ def test_region_volume_kernel_follows_its_numpy_reference(small_arm):
     pipe.deform(ch.pose(elbow_rz=np.radians(150)))
     fr, st = pipe.last_frame, pipe.stages[3]
     j = ch.skeleton.index("elbow")
-    v, t, inc, F = st.verts[j], st.tris[j], st.inc[j], st.F
+    v, t, corners, F = st.verts[j], st.tris[j], st.corners[j], st.F
     X0 = fr.surface.copy()
     X0[v] -= 0.08 * (X0[v] - fr.G[j, :3, 3])        # a region short of its volume
     free = np.ones(len(X0))
@@ -181,7 +181,7 @@ def test_region_volume_kernel_follows_its_numpy_reference(small_arm):
     mob = st.mob[j] * fr.fade[j]
     # the reference: the layers as numpy arrays
     X, g = X0.copy(), np.empty((len(v), 3))
-    vol = cone_volume_gradient(X, F, t, c, *inc, v, g)
+    vol = cone_volume_gradient(X, F, t, c, corners, g)
     steps = 0
     for it in range(8):
         deficit = st.vol0[j] - vol
@@ -203,10 +203,10 @@ def test_region_volume_kernel_follows_its_numpy_reference(small_arm):
         if room is not None:
             step = np.minimum(step, room)
         X[v] += step[:, None] * (g / np.maximum(a, 1e-30)[:, None])
-        vol = cone_volume_gradient(X, F, t, c, *inc, v, g)
+        vol = cone_volume_gradient(X, F, t, c, corners, g)
         steps += 1
     Y = X0.copy()
-    got = keep_region_volume(Y, F, t, c, *inc, v, mob, free, st.seg, st.r0, st.hold,
+    got = keep_region_volume(Y, F, t, c, corners, v, mob, free, st.seg, st.r0, st.hold,
                              fr.seg_A, fr.seg_B, limit, st.vol0[j], cap, Y.copy(),
                              np.full(len(Y), np.inf), st._edge, np.empty((len(v), 3)),
                              np.empty(len(v)), np.empty(len(v)))

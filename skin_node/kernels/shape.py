@@ -350,7 +350,7 @@ def smoothstep(x):
 
 
 @nb.njit(cache=True, nogil=True)
-def keep_region_volume(X, F, tris, c, inc_ptr, inc, verts, mob, free, seg, r0, hold, A, B,
+def keep_region_volume(X, F, tris, c, corners, verts, mob, free, seg, r0, hold, A, B,
                        limit, vol0, cap, start, near, fade, g, room, share):
     """One joint region's volume back to ``vol0`` (the cone from ``c`` over
     its triangles ``tris``, :func:`cone_volume_gradient`), by even layers
@@ -367,7 +367,7 @@ def keep_region_volume(X, F, tris, c, inc_ptr, inc, verts, mob, free, seg, r0, h
     ``fade[i]`` of that. ``g``
     (len(verts), 3), ``room`` and ``share`` (len(verts),) are scratch.
     Returns the region's volume at the end."""
-    vol = cone_volume_gradient(X, F, tris, c, inc_ptr, inc, verts, g)
+    vol = cone_volume_gradient(X, F, tris, c, corners, g)
     for it in range(8):
         deficit = vol0 - vol
         if abs(deficit) <= 2e-3 * abs(vol0):
@@ -406,41 +406,86 @@ def keep_region_volume(X, F, tris, c, inc_ptr, inc, verts, mob, free, seg, r0, h
             X[i, 2] += step * g[k, 2] / a
             if near[i] < np.inf:
                 _hold(X, i, start[i, 0], start[i, 1], start[i, 2], near[i])
-        vol = cone_volume_gradient(X, F, tris, c, inc_ptr, inc, verts, g)
+        vol = cone_volume_gradient(X, F, tris, c, corners, g)
     return vol
 
 
 @nb.njit(cache=True, nogil=True)
-def cone_volume_gradient(X, F, tris, c, inc_ptr, inc, verts, g):
+def even_layer(X, verts, g, mob, deficit, cap, env, room, r0, limit, held, near, start, fade,
+               share):
+    """One even layer over ``verts`` towards a volume ``deficit`` along the
+    volume's gradient ``g`` (len(verts), 3): vertex ``verts[k]`` moves by its
+    share ``mob[k]`` of a step that makes up the deficit to first order, by
+    at most ``cap`` either way. With ``env`` its share fades to none as its
+    ``room`` (:func:`envelope_room`) falls from half of ``limit`` times its
+    rest distance ``r0[i, 0]`` to 0, and it moves no further than that room;
+    with ``held`` it fades to none over the last ``fade[i]`` of how far it may
+    be from ``start[i]`` (``near[i]``, :func:`hold_clear`). ``share``
+    (len(verts),) is scratch. Returns False, moving nothing, when no vertex
+    takes any of the layer."""
+    den = 0.0
+    for k in range(verts.shape[0]):
+        i = verts[k]
+        m = mob[k]
+        if env:
+            m *= smoothstep(room[k] / max(0.5 * limit * r0[i, 0], 1e-12))
+        if held:
+            d = math.sqrt((X[i, 0] - start[i, 0]) ** 2 + (X[i, 1] - start[i, 1]) ** 2
+                          + (X[i, 2] - start[i, 2]) ** 2)
+            m *= smoothstep((near[i] - d) / max(fade[i], 1e-12))
+        share[k] = m
+        den += m * math.sqrt(g[k, 0] ** 2 + g[k, 1] ** 2 + g[k, 2] ** 2)
+    if den <= 0.0:
+        return False
+    s = deficit / den
+    for k in range(verts.shape[0]):
+        i = verts[k]
+        step = min(max(s * share[k], -cap), cap)
+        if env:
+            step = min(step, room[k])
+        a = max(math.sqrt(g[k, 0] ** 2 + g[k, 1] ** 2 + g[k, 2] ** 2), 1e-30)
+        X[i, 0] += step * (g[k, 0] / a)
+        X[i, 1] += step * (g[k, 1] / a)
+        X[i, 2] += step * (g[k, 2] / a)
+    return True
+
+
+@nb.njit(cache=True, nogil=True)
+def cone_volume_gradient(X, F, tris, c, corners, g):
     """Volume of the cone from ``c`` over triangles ``tris`` of ``X`` and its
-    gradient ``g`` (len(verts), 3) with respect to each vertex of ``verts``
-    (``inc_ptr, inc``: CSR of each of ``verts``' triangles among ``tris``)."""
+    gradient ``g`` with respect to the vertices the triangles' ``corners``
+    (len(tris), 3) name: ``corners[r, q]`` is the row of ``g`` that corner
+    ``q`` of triangle ``tris[r]`` adds to, -1 for a corner outside them
+    (:func:`region_corners`). One pass over the triangles, each adding to
+    its corners in turn (so each row sums its triangles in their order)."""
     vol = 0.0
-    for t in range(tris.shape[0]):
-        f = tris[t]
+    g[:] = 0.0
+    for r in range(tris.shape[0]):
+        f = tris[r]
         a, b, d = F[f, 0], F[f, 1], F[f, 2]
         ax, ay, az = X[a, 0] - c[0], X[a, 1] - c[1], X[a, 2] - c[2]
         bx, by, bz = X[b, 0] - c[0], X[b, 1] - c[1], X[b, 2] - c[2]
         dx, dy, dz = X[d, 0] - c[0], X[d, 1] - c[1], X[d, 2] - c[2]
-        vol += (ax * (by * dz - bz * dy) + ay * (bz * dx - bx * dz) + az * (bx * dy - by * dx))
-    for k in range(verts.shape[0]):
-        i = verts[k]
-        gx = gy = gz = 0.0
-        for q in range(inc_ptr[k], inc_ptr[k + 1]):
-            f = tris[inc[q]]
-            # the other two corners in order after i: d(det)/dp_i = their cross product
-            if F[f, 0] == i:
-                o1, o2 = F[f, 1], F[f, 2]
-            elif F[f, 1] == i:
-                o1, o2 = F[f, 2], F[f, 0]
-            else:
-                o1, o2 = F[f, 0], F[f, 1]
-            ux, uy, uz = X[o1, 0] - c[0], X[o1, 1] - c[1], X[o1, 2] - c[2]
-            vx, vy, vz = X[o2, 0] - c[0], X[o2, 1] - c[1], X[o2, 2] - c[2]
-            gx += uy * vz - uz * vy
-            gy += uz * vx - ux * vz
-            gz += ux * vy - uy * vx
-        g[k, 0], g[k, 1], g[k, 2] = gx / 6.0, gy / 6.0, gz / 6.0
+        # d(det)/dp of a corner: the cross product of the two after it in turn
+        cx, cy, cz = by * dz - bz * dy, bz * dx - bx * dz, bx * dy - by * dx
+        vol += ax * cx + ay * cy + az * cz
+        k = corners[r, 0]
+        if k >= 0:
+            g[k, 0] += cx
+            g[k, 1] += cy
+            g[k, 2] += cz
+        k = corners[r, 1]
+        if k >= 0:
+            g[k, 0] += dy * az - dz * ay
+            g[k, 1] += dz * ax - dx * az
+            g[k, 2] += dx * ay - dy * ax
+        k = corners[r, 2]
+        if k >= 0:
+            g[k, 0] += ay * bz - az * by
+            g[k, 1] += az * bx - ax * bz
+            g[k, 2] += ax * by - ay * bx
+    for k in range(g.shape[0]):
+        g[k, 0], g[k, 1], g[k, 2] = g[k, 0] / 6.0, g[k, 1] / 6.0, g[k, 2] / 6.0
     return vol / 6.0
 
 
@@ -456,40 +501,18 @@ def enclosed_volume(X, F):
     return vol / 6.0
 
 
-def region_incidence(F: np.ndarray, tris: np.ndarray, verts: np.ndarray):
-    """CSR of each of ``verts``' (sorted) triangles among ``tris`` (positions
-    into ``tris``, ascending), for :func:`cone_volume_gradient`."""
-    if not len(verts) or not len(tris):
-        return np.zeros(len(verts) + 1, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    return _incidence(np.ascontiguousarray(F, dtype=np.int64),
-                      np.ascontiguousarray(tris, dtype=np.int64),
-                      np.ascontiguousarray(verts, dtype=np.int64), int(F.max()) + 1)
-
-
-@nb.njit(cache=True, nogil=True)
-def _incidence(F, tris, verts, n):
-    # a counting sort by vertex: a zone is rebuilt whenever the set of bent
-    # joints changes, so this runs at frame rate, not once
-    pos = np.full(max(n, int(verts.max()) + 1), -1, dtype=np.int64)
-    for k in range(verts.shape[0]):
-        pos[verts[k]] = k
-    ptr = np.zeros(verts.shape[0] + 1, dtype=np.int64)
-    for r in range(tris.shape[0]):
-        for c in range(3):
-            k = pos[F[tris[r], c]]
-            if k >= 0:
-                ptr[k + 1] += 1
-    for k in range(verts.shape[0]):
-        ptr[k + 1] += ptr[k]
-    fill = ptr[:-1].copy()
-    rows = np.empty(ptr[-1], dtype=np.int64)
-    for r in range(tris.shape[0]):
-        for c in range(3):
-            k = pos[F[tris[r], c]]
-            if k >= 0:
-                rows[fill[k]] = r
-                fill[k] += 1
-    return ptr, rows
+def region_corners(F: np.ndarray, tris: np.ndarray, verts: np.ndarray) -> np.ndarray:
+    """For :func:`cone_volume_gradient`: each corner of triangles ``tris``
+    as its position in ``verts`` (len(tris), 3), -1 where it is not one."""
+    F = np.asarray(F, dtype=np.int64)
+    tris = np.asarray(tris, dtype=np.int64)
+    verts = np.asarray(verts, dtype=np.int64)
+    if not len(tris):
+        return np.zeros((0, 3), dtype=np.int64)
+    pos = np.full(max(int(F.max()), int(verts.max()) if len(verts) else 0) + 1, -1,
+                  dtype=np.int64)
+    pos[verts] = np.arange(len(verts))
+    return np.ascontiguousarray(pos[F[tris]])
 
 
 @nb.njit(cache=True, nogil=True)

@@ -7,8 +7,9 @@ import math
 import numpy as np
 
 from ..kernels.shape import (bent_edges, cone_volume_gradient, enclosed_volume, envelope_clamp,
-                             clearance_caps, envelope_room, hold_clear, keep_region_volume,
-                             limit_bulge, parting_pairs, pull_bulge, region_incidence,
+                             clearance_caps, envelope_room, even_layer, hold_clear,
+                             keep_region_volume,
+                             limit_bulge, parting_pairs, pull_bulge, region_corners,
                              split_fade)
 from ..kernels.smoothing import gather_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
@@ -171,7 +172,7 @@ class Inflate(Stage):
         r, skel, F = character.rig, character.skeleton, character.F
         self.F = F
         V = character.V
-        self.tris, self.verts, self.mob, self.inc, self.vol0 = [], [], [], [], []
+        self.tris, self.verts, self.mob, self.corners, self.vol0 = [], [], [], [], []
         below = skel.subtree()
         w = self.weights
         for j in range(skel.n_joints):
@@ -199,9 +200,9 @@ class Inflate(Stage):
             self.tris.append(t.astype(np.int64))
             self.verts.append(v)
             self.mob.append(mob)
-            self.inc.append(region_incidence(F, t, v))
+            self.corners.append(region_corners(F, t, v))
             c = skel.rest_positions[j]
-            self.vol0.append(float(cone_volume_gradient(V, F, t, c, *self.inc[-1], v,
+            self.vol0.append(float(cone_volume_gradient(V, F, t, c, self.corners[-1],
                                                         np.empty((len(v), 3)))))
         self.radius = r.radius
         # the whole mesh: its volume, and per joint the skin whose weights it
@@ -345,33 +346,18 @@ class Inflate(Stage):
         for j in js:
             v = self.verts[j]
             g, room, share = np.empty((len(v), 3)), np.empty(len(v)), np.empty(len(v))
-            vol = keep_region_volume(X, self.F, self.tris[j], fr.G[j, :3, 3], *self.inc[j], v,
-                                     self.mob[j] * fr.fade[j], free, self.seg, self.r0,
+            vol = keep_region_volume(X, self.F, self.tris[j], fr.G[j, :3, 3], self.corners[j],
+                                     v, self.mob[j] * fr.fade[j], free, self.seg, self.r0,
                                      self.hold, fr.seg_A, fr.seg_B, limit, self.vol0[j],
                                      cap * self.radius[j], start, near, self._edge, g, room,
                                      share)
             out[j] = vol / self.vol0[j]
         return out
 
-    def _room(self, X: np.ndarray, v: np.ndarray, fr: Frame) -> np.ndarray:
-        """How far out each of ``v`` may still move: to ``bulge_limit`` of its
-        rest distance beyond it, from its nearest bone segment and, as the
-        bulge limit holds them, from the next nearest (0 past any)."""
-        room = np.empty(len(v))
-        envelope_room(X, v, self.seg, self.r0, self.hold, fr.seg_A, fr.seg_B,
-                      float(self.params["bulge_limit"]), room)
-        return room
-
-    def _give(self, room: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """How much of an outward layer each of ``v`` takes: all of it with half
-        the bulge limit's room left or more, fading to none at the envelope (a
-        cap alone would leave a step where capped skin meets free skin)."""
-        x = np.clip(room / np.maximum(0.5 * float(self.params["bulge_limit"]) * self.r0[v, 0],
-                                      1e-12), 0.0, 1.0)
-        return x * x * (3.0 - 2.0 * x)
-
     def _zone(self, bent: np.ndarray):
-        """The skin the bent joints split, its triangles and their CSR."""
+        """The skin the bent joints split, its triangles, their corners'
+        positions in it (:func:`~skin_node.kernels.shape.region_corners`), its
+        ring layout and edge weights."""
         def make():
             n = len(self.V0)
             v = _union(self.jverts, bent, n)
@@ -379,7 +365,7 @@ class Inflate(Stage):
             mask[v] = True
             t = np.flatnonzero(mask[self.F].any(axis=1)).astype(np.int64)
             lay = ring_layout(v, self._ptr, self._adj)
-            return (v, t, region_incidence(self.F, t, v), lay,
+            return (v, t, region_corners(self.F, t, v), lay,
                     gather_weights(v, self._ptr, self._w_adj, lay[2]))
         return self._zones.get(bent.tobytes(), make)
 
@@ -395,7 +381,7 @@ class Inflate(Stage):
                                                           else 0.0)
         if deficit == 0.0:
             return
-        v, t, inc, (ring, loc, lptr, lnbr), lw = self._zone(fr.bent)
+        v, t, corners, (ring, loc, lptr, lnbr), lw = self._zone(fr.bent)
         if not len(v):
             return
         base = X.copy()
@@ -407,7 +393,7 @@ class Inflate(Stage):
         # within the bulge limit's envelope first, the layer smoothed (it
         # thins where the envelope or contact holds skin: gradually, not in a
         # step), then what smoothing and the envelope left out, past it
-        deficit = self._layer(fr, v, t, inc, m, target, deficit, lim, 3, True, start, near)
+        deficit = self._layer(fr, v, t, corners, m, target, deficit, lim, 3, True, start, near)
         passes = self.passes("inflate_smoothing")
         if passes:
             laplacian_smooth(X, base, True, ring, loc, lptr, lnbr, lw, 0.5, passes,
@@ -423,9 +409,9 @@ class Inflate(Stage):
             deficit = target - enclosed_volume(X, self.F)
             if (deficit > 0.0) != (target < self.mesh_vol0):
                 return
-        self._layer(fr, v, t, inc, m, target, deficit, lim, 2, False, start, near)
+        self._layer(fr, v, t, corners, m, target, deficit, lim, 2, False, start, near)
 
-    def _layer(self, fr, v, t, inc, m, target, deficit, lim, steps, within, start, near):
+    def _layer(self, fr, v, t, corners, m, target, deficit, lim, steps, within, start, near):
         """Up to ``steps`` even layers over ``v`` (mobility ``m``) towards the
         mesh volume ``target``, within the bulge limit's envelope when
         ``within`` and the mesh is short, and within ``near`` of ``start``
@@ -433,27 +419,23 @@ class Inflate(Stage):
         the last mean edge of it; returns the deficit left."""
         held = near is not self._far
         X = fr.surface
-        g = np.empty((len(v), 3))
+        g, room, share = np.empty((len(v), 3)), np.empty(len(v)), np.empty(len(v))
+        limit = float(self.params["bulge_limit"])
         for _ in range(steps):
             if abs(deficit) <= 1e-3 * self.mesh_vol0:
                 break
-            cone_volume_gradient(X, self.F, t, np.zeros(3), *inc, v, g)
-            a = np.linalg.norm(g, axis=1)
+            cone_volume_gradient(X, self.F, t, np.zeros(3), corners, g)
+            # within the envelope each vertex takes all of a layer with half
+            # the bulge limit's room left or more, fading to none at the
+            # envelope (a cap alone would leave a step where capped skin meets
+            # free skin); skin as far from its start as it may be takes no more
             env = within and deficit > 0.0
-            room = self._room(X, v, fr) if env else None
-            mm = m * self._give(room, v) if env else m
-            if held:
-                # skin as far from its start as it may be takes no more
-                x = np.clip((near[v] - np.linalg.norm(X[v] - start[v], axis=1))
-                            / np.maximum(self._edge[v], 1e-12), 0.0, 1.0)
-                mm = mm * (x * x * (3.0 - 2.0 * x))
-            den = float((mm * a).sum())
-            if den <= 0.0:
-                break
-            step = np.clip((deficit / den) * mm, -lim, lim)
             if env:
-                step = np.minimum(step, room)
-            X[v] += step[:, None] * (g / np.maximum(a, 1e-30)[:, None])
+                envelope_room(X, v, self.seg, self.r0, self.hold, fr.seg_A, fr.seg_B, limit,
+                              room)
+            if not even_layer(X, v, g, m, deficit, lim, env, room, self.r0, limit, held, near,
+                              start, self._edge, share):
+                break
             if held:
                 hold_clear(X, v, start, near)
             deficit = target - enclosed_volume(X, self.F)
