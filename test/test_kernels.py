@@ -832,6 +832,24 @@ def test_even_layer_moves_skin_as_its_numpy_reference():
     assert np.array_equal(got, X)
 
 
+def test_moved_rows_is_numpys_row_test():
+    """moved_rows against numpy's (X != Y).any(axis=1): rows that differ in
+    one coordinate each, in all three, by the smallest step, or not at all
+    (and NaN, which differs from itself)."""
+    from skin_node.kernels.shape import moved_rows
+    rng = np.random.default_rng(5)
+    X = rng.normal(size=(1000, 3))
+    Y = X.copy()
+    for c in range(3):
+        Y[c::7, c] = np.nextafter(Y[c::7, c], np.inf)
+    Y[5::11] += 1.0
+    Y[999, 1] = np.nan
+    got = moved_rows(X, Y)
+    assert got.dtype == np.bool_ and 300 < got.sum() < 600
+    assert np.array_equal(got, (X != Y).any(axis=1))
+    assert not moved_rows(X, X.copy()).any()
+
+
 def _grid(n=21, h=0.01):
     """A flat n x n grid of spacing h (one-ring CSR over its triangles)."""
     from skin_node.rigging.build import one_ring

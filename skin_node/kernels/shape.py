@@ -490,6 +490,17 @@ def cone_volume_gradient(X, F, tris, c, corners, g):
 
 
 @nb.njit(cache=True, nogil=True)
+def moved_rows(X, Y):
+    """Whether each row of ``X`` (n, 3) differs from ``Y``'s: numpy's
+    ``(X != Y).any(axis=1)`` without its (n, 3) temporary and its slow
+    reduction over rows of three (0.17 ms a call on 24k rows)."""
+    out = np.empty(X.shape[0], dtype=np.bool_)
+    for i in range(X.shape[0]):
+        out[i] = X[i, 0] != Y[i, 0] or X[i, 1] != Y[i, 1] or X[i, 2] != Y[i, 2]
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
 def enclosed_volume(X, F):
     """The volume a closed surface encloses (the signed cones from the origin)."""
     vol = 0.0

@@ -8,9 +8,8 @@ import numpy as np
 
 from ..kernels.shape import (bent_edges, cone_volume_gradient, enclosed_volume, envelope_clamp,
                              clearance_caps, envelope_room, even_layer, hold_clear,
-                             keep_region_volume,
-                             limit_bulge, parting_pairs, pull_bulge, region_corners,
-                             split_fade)
+                             keep_region_volume, limit_bulge, moved_rows, parting_pairs,
+                             pull_bulge, region_corners, split_fade)
 from ..kernels.smoothing import gather_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from ..metrics import interior_edges
@@ -304,11 +303,11 @@ class Inflate(Stage):
         capped = 0
         for _ in range(RELIEF_ROUNDS):
             before = X.copy()
-            now = self.cap_relief(X, start, np.flatnonzero((X != start).any(axis=1)))
+            now = self.cap_relief(X, start, np.flatnonzero(moved_rows(X, start)))
             capped += now
             if not now:
                 break
-            cut = (X != before).any(axis=1)
+            cut = moved_rows(X, before)
             if self._cross and RELAY_WHOLE and float(self.params["inflate_slack"]) < 1.0:
                 self._whole(fr, free, start, near)
             ratios.update(self._regions(fr, [j for j in js if cut[self.verts[j]].any()],
@@ -319,7 +318,7 @@ class Inflate(Stage):
         """The vertices inflation moved (from ``start``) at a corner of two
         coarse triangles whose edge it bent by more than WITHHOLD_BEND
         degrees, or of a coarse triangle it ran through another part's."""
-        moved = (X != start).any(axis=1)
+        moved = moved_rows(X, start)
         hit = np.zeros(len(X), dtype=np.bool_)
         bent_edges(X, start, self.F, *self._efaces, moved, math.radians(WITHHOLD_BEND), hit)
         tris = self._cross.near(moved)
