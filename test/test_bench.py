@@ -146,6 +146,20 @@ def test_jitter_reads_a_flicker(arm):
     assert len(j) == 5 and np.allclose(j, 4.0)
 
 
+def test_jitter_frames_span_the_stretch_the_run_covers(arm):
+    """The jitter measure's consecutive frames run from the clip's first
+    frame to the last one the run samples: the whole clip, its deepest bend
+    included, unless ``max_frames`` cuts the run short."""
+    every = make_motion("elbow_bend", arm).frames
+    mo = make_motion("elbow_bend", arm, stride=30)
+    assert len(mo.dense) == (len(mo.frames) - 1) * 30 + 1 > len(every) - 30
+    assert np.array_equal(mo.dense, every[:len(mo.dense)])
+    assert np.array_equal(mo.dense[::30], mo.frames)
+    elbow = every[:, arm.skeleton.channel_names.index("elbow_rz")]
+    assert np.argmax(np.abs(elbow)) < len(mo.dense)
+    assert len(make_motion("elbow_bend", arm, stride=30, max_frames=3).dense) == 61
+
+
 def test_pose_sweeps_and_cases(arm):
     m = make_motion("twist_sweep", arm, steps=5)
     assert np.allclose(m.x, [0, 90, 180, 270, 360]) and m.frames.shape == (5, arm.n_channels)

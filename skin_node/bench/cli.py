@@ -43,7 +43,7 @@ from ..motion import GLTF_PREFIX, file_animations, file_clip, load_motion
 from ..pipeline import STAGE_NAMES
 from .carried import carried_table, run_carried
 from .export_memory import export_memory_line, run_export_memory
-from .measure import (JITTER_FRAMES, Motion, Progress, expand_methods, expand_scenes,
+from .measure import (Motion, Progress, clip_motion, expand_methods, expand_scenes,
                       load_scene, make_motion, memory_profile, parse_method, run_method)
 from .pictures import closeups
 from .ros_latency import latency_line, main as ros_main, measure_latency
@@ -141,15 +141,11 @@ def motion(name: str, character_spec: str, ch, steps: int = 37, stride: int = 1,
     (named ``bvh:STEM``)."""
     if name.lower().endswith(".bvh"):
         clip = load_motion(character_spec, bvh=name, skeleton=ch.skeleton)
-        frames = clip.frames[::max(1, stride)][:max_frames or None]
-        return Motion("bvh:" + clip.name, frames, None, clip.fps / max(1, stride),
-                      clip.frames[:JITTER_FRAMES])
+        return clip_motion("bvh:" + clip.name, clip.frames, clip.fps, stride, max_frames)
     clip = file_clip(character_spec, name)
     if clip is None:
         return make_motion(name, ch, steps=steps, stride=stride, max_frames=max_frames)
-    frames = clip.frames[::max(1, stride)][:max_frames or None]
-    return Motion(GLTF_PREFIX + clip.name, frames, None, clip.fps / max(1, stride),
-                  clip.frames[:JITTER_FRAMES])
+    return clip_motion(GLTF_PREFIX + clip.name, clip.frames, clip.fps, stride, max_frames)
 
 
 def run_bench(pipelines, scenes, clips=None, iterations=None, stiffness=None, tets=None,

@@ -62,8 +62,9 @@ Timing
     skin (``lbs``, ``dqs``) do not depend on either setting: their distance is
     0 by construction and is not computed.
 ``jitter_mm_p50`` / ``jitter_mm_max`` (summary only)
-    Smoothness in time. Over the clip's first :data:`JITTER_FRAMES` frames,
-    consecutive (120 Hz), from a fresh start: per pair of frames the largest
+    Smoothness in time. Over every frame of the stretch of the clip the run
+    covers (all of it unless ``max_frames`` cuts it), consecutive (120 Hz),
+    from a fresh start: per pair of frames the largest
     vertex change of the correction the pipeline adds to its stage 1 (LBS or
     DQS alone), ``max_i |(V_t - S_t) - (V_t-1 - S_t-1)|``; median and largest
     over the frame pairs, mm. A smooth motion changes the correction by a
@@ -89,9 +90,6 @@ from ..rigging.weights import point_segment_distance, segment_distance
 
 #: Skinning-only stages: iterations, tets and active_threshold do not change their result.
 SKIN_ONLY = {"lbs", "dqs"}
-#: Consecutive clip frames of the jitter measure.
-JITTER_FRAMES = 60
-
 
 # --------------------------------------------------------------------- progress
 class Progress:
@@ -258,8 +256,21 @@ class Motion:
     frames: np.ndarray
     x: np.ndarray | None = None
     fps: float = 120.0
-    #: the clip's first frames, consecutive (no stride), for the jitter measure
+    #: every frame of the stretch ``frames`` samples, consecutive (no stride),
+    #: for the jitter measure
     dense: np.ndarray | None = None
+
+
+def clip_motion(name: str, clip_frames: np.ndarray, fps: float, stride: int = 1,
+                max_frames: int | None = None) -> Motion:
+    """A clip's every ``stride``-th frame, at most ``max_frames``; its ``dense``
+    frames are all the clip's frames from the first to the last one kept, so
+    the jitter measure sees the clip's deepest bends at 120 Hz, not just its
+    start."""
+    stride = max(1, stride)
+    frames = clip_frames[::stride][:max_frames or None]
+    dense = clip_frames[:(len(frames) - 1) * stride + 1]
+    return Motion(name, frames, None, fps / stride, dense)
 
 
 #: Pose sweeps on the arm: (channel, last angle in degrees).
@@ -284,10 +295,7 @@ def make_motion(name: str, character, steps: int = 37, stride: int = 1,
         clip = make_clip(name, skel)
     except ValueError:
         return None
-    frames = clip.frames[::max(1, stride)]
-    if max_frames:
-        frames = frames[:max_frames]
-    return Motion(name, frames, None, clip.fps / max(1, stride), clip.frames[:JITTER_FRAMES])
+    return clip_motion(name, clip.frames, clip.fps, stride, max_frames)
 
 
 def jitter(pipe: Pipeline, stage1: Pipeline, frames: np.ndarray) -> np.ndarray:
