@@ -160,6 +160,19 @@ def test_jitter_frames_span_the_stretch_the_run_covers(arm):
     assert len(make_motion("elbow_bend", arm, stride=30, max_frames=3).dense) == 61
 
 
+def test_default_correction_changes_smoothly_through_the_whole_bend(arm):
+    """Every consecutive pair of the arm's elbow_bend at 120 Hz (0 to 150
+    degrees and back), from a fresh start: the default's correction of DQS
+    moves no vertex by more than 3.5 mm between two frames. Skin the contact
+    starts to move joins the mush by how far the contact moved it, not at
+    once: with the mush's zone switched on whole, single vertices jumped by
+    5.3 mm."""
+    dense = make_motion("elbow_bend", arm).dense
+    j = jitter(Pipeline.preset(arm, "default"), Pipeline(arm, ["dqs"]), dense)
+    assert len(j) == len(dense) - 1 > 300
+    assert j.max() < 3.5
+
+
 def test_pose_sweeps_and_cases(arm):
     m = make_motion("twist_sweep", arm, steps=5)
     assert np.allclose(m.x, [0, 90, 180, 270, 360]) and m.frames.shape == (5, arm.n_channels)

@@ -739,11 +739,93 @@ def test_laplacian_smooth_is_jacobi_on_the_chosen_vertices_only(relative):
     assert np.array_equal(ring[loc], verts) and set(ring) == set(verts) | set(nbr[
         np.concatenate([np.arange(ptr[i], ptr[i + 1]) for i in verts])])
     got = X.copy()
-    laplacian_smooth(got, base, relative, ring, loc, lptr, lnbr, np.empty(0), 0.4, 3,
+    laplacian_smooth(got, base, relative, ring, loc, lptr, lnbr, np.empty(0), 0.4, np.empty(0), 3,
                      np.empty((len(ring), 3)), np.empty((len(verts), 3)))
     assert np.abs(got - want).max() < 1e-12
     others = np.setdiff1d(np.arange(len(X)), verts)
     assert np.array_equal(got[others], X[others]) and np.abs(got - X)[verts].max() > 0.01
+
+
+def test_laplacian_smooth_step_factors_hold_scale_and_match_the_even_step():
+    """Per-vertex step factors ``kw``: all ones is bitwise the even step, a 0
+    holds its vertex where it is, a 0.5 takes the step ``k / 2`` (the Jacobi
+    update written out by hand)."""
+    from skin_node.kernels.smoothing import EVEN, laplacian_smooth, ring_layout
+    m = trimesh.creation.icosphere(subdivisions=3)
+    rng = np.random.default_rng(5)
+    X = np.array(m.vertices) + rng.normal(0.0, 0.05, (len(m.vertices), 3))
+    nbrs = m.vertex_neighbors
+    ptr = np.cumsum([0] + [len(n) for n in nbrs]).astype(np.int64)
+    nbr = np.concatenate(nbrs).astype(np.int64)
+    verts = np.flatnonzero(np.asarray(m.vertices)[:, 2] > 0.3)
+    ring, loc, lptr, lnbr = ring_layout(verts, ptr, nbr)
+
+    def smooth(kw, iterations):
+        out = X.copy()
+        laplacian_smooth(out, out, False, ring, loc, lptr, lnbr, EVEN, 0.4, kw, iterations,
+                         np.empty((len(ring), 3)), np.empty((len(verts), 3)))
+        return out
+
+    assert np.array_equal(smooth(np.ones(len(verts)), 3), smooth(EVEN, 3))
+    kw = rng.choice([0.0, 0.5, 1.0], len(verts))
+    got = smooth(kw, 1)
+    for a, i in enumerate(verts):
+        want = (1 - 0.4 * kw[a]) * X[i] + 0.4 * kw[a] * X[nbrs[i]].mean(axis=0)
+        assert np.abs(got[i] - want).max() < 1e-12
+    held = verts[kw == 0.0]
+    assert len(held) > 10 and np.array_equal(smooth(kw, 3)[held], X[held])
+
+
+def test_strongest_within_is_the_max_over_sources_in_reach_and_grows_from_nothing():
+    """``strongest_within``: on every vertex within ``rings`` hops of a
+    source, the largest strength of the sources within ``rings`` hops of it
+    (against hop counts from a breadth-first search per source); a source of
+    strength 0 reaches vertices but adds nothing, and one of 1e-9 at most
+    1e-9: what the sources reach grows without a jump."""
+    from skin_node.kernels.topology import strongest_within
+    m = trimesh.creation.icosphere(subdivisions=3)
+    nbrs = m.vertex_neighbors
+    n = len(nbrs)
+    ptr = np.cumsum([0] + [len(x) for x in nbrs]).astype(np.int64)
+    nbr = np.concatenate(nbrs).astype(np.int64)
+    rng = np.random.default_rng(6)
+    src = rng.choice(n, 6, replace=False).astype(np.int64)
+    strength = np.array([1.0, 0.3, 0.7, 0.05, 0.0, 1e-9])
+    rings = 3
+
+    def hops_from(j):
+        h = np.full(n, 1 << 30)
+        h[j], front = 0, [j]
+        while front:
+            nxt = []
+            for i in front:
+                for q in nbrs[i]:
+                    if h[q] > h[i] + 1:
+                        h[q] = h[i] + 1
+                        nxt.append(q)
+            front = nxt
+        return h
+
+    def run(src, strength):
+        hops, queue = np.full(n, 1 << 30, dtype=np.int64), np.empty(n, dtype=np.int64)
+        out = np.full(n, -1.0)
+        k = strongest_within(src, strength, ptr, nbr, rings, hops, queue, np.empty(n),
+                             np.empty(n), out)
+        reached = np.sort(queue[:k])
+        assert np.all(hops[reached] <= rings)
+        res = np.zeros(n)
+        res[reached] = out[reached]
+        return reached, res
+
+    reached, got = run(src, strength)
+    H = np.stack([hops_from(j) for j in src])
+    want = np.where(H <= rings, strength[:, None], 0.0).max(axis=0)
+    assert np.array_equal(reached, np.flatnonzero(H.min(axis=0) <= rings))
+    assert np.array_equal(got, want) and got.max() == 1.0
+    _, without = run(src[:4], strength[:4])
+    assert np.abs(got - without).max() <= 1e-9
+    only_zero = (H[4] <= rings) & (np.delete(H, 4, axis=0).min(axis=0) > rings)
+    assert only_zero.any() and np.all(got[only_zero] <= 1e-9)
 
 
 def test_cone_volume_gradient_matches_the_determinant_and_its_derivative():

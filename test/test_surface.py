@@ -288,7 +288,7 @@ def _mush(X, V, F, verts, passes):
     L, buf = np.empty((len(ring), 3)), np.empty((len(loc), 3))
     SX, SV = X.copy(), V.copy()
     for S in (SX, SV):
-        laplacian_smooth(S, S, False, ring, loc, lptr, lnbr, np.empty(0), 0.5, passes, L, buf)
+        laplacian_smooth(S, S, False, ring, loc, lptr, lnbr, np.empty(0), 0.5, np.empty(0), passes, L, buf)
     out = X.copy()
     restore_detail(out, V, SX, SV, np.sort(verts).astype(np.int64), F.astype(np.int64),
                    *vertex_faces(F, len(V)), adj[ptr[:-1]], np.ones(len(V)))

@@ -19,6 +19,9 @@ import numpy as np
 
 from . import FAST
 
+#: no weights or factors: :func:`laplacian_smooth`'s ``lw`` or ``kw`` for an even step
+EVEN = np.empty(0)
+
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def _frame(S, F, vf_ptr, vf, first, i):
@@ -134,7 +137,7 @@ def _ring_layout(verts, ptr, nbr, pos):
 
 
 @nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
-def laplacian_smooth(X, base, relative, ring, loc, lptr, lnbr, lw, k, iterations, L, buf):
+def laplacian_smooth(X, base, relative, ring, loc, lptr, lnbr, lw, k, kw, iterations, L, buf):
     """Jacobi Laplacian smoothing of the vertices of a :func:`ring_layout`, in
     place: ``p <- (1-k) p + k mean(one ring)``, ``iterations`` times, of the
     positions ``X`` or, with ``relative``, of the displacements ``X - base``
@@ -142,8 +145,10 @@ def laplacian_smooth(X, base, relative, ring, loc, lptr, lnbr, lw, k, iterations
     are scratch. The ring is read, only the vertices themselves move. With
     ``lw`` (one weight per ``lnbr`` entry; empty for an even mean) the mean is
     weighted (:func:`edge_weights`: a sliver's two close corners move
-    together)."""
+    together). With ``kw`` (one factor per vertex of ``loc``; empty for none)
+    vertex ``a`` takes the step ``k kw[a]``: a factor of 0 holds it."""
     weighted = lw.shape[0] > 0
+    scaled = kw.shape[0] > 0
     for a in nb.prange(ring.shape[0]):
         i = ring[a]
         for c in range(3):
@@ -160,11 +165,12 @@ def laplacian_smooth(X, base, relative, ring, loc, lptr, lnbr, lw, k, iterations
                 sy += w * L[q, 1]
                 sz += w * L[q, 2]
                 sw += w
-            c = k / max(sw, 1e-30)
+            ka = k * kw[a] if scaled else k
+            c = ka / max(sw, 1e-30)
             i = loc[a]
-            buf[a, 0] = (1.0 - k) * L[i, 0] + c * sx
-            buf[a, 1] = (1.0 - k) * L[i, 1] + c * sy
-            buf[a, 2] = (1.0 - k) * L[i, 2] + c * sz
+            buf[a, 0] = (1.0 - ka) * L[i, 0] + c * sx
+            buf[a, 1] = (1.0 - ka) * L[i, 1] + c * sy
+            buf[a, 2] = (1.0 - ka) * L[i, 2] + c * sz
         for a in nb.prange(loc.shape[0]):
             i = loc[a]
             L[i, 0], L[i, 1], L[i, 2] = buf[a, 0], buf[a, 1], buf[a, 2]

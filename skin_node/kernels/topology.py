@@ -30,3 +30,35 @@ def ring_distance(sources, ptr, nbr, hops, limit, queue):
                 queue[n] = k
                 n += 1
     return n
+
+
+@nb.njit(cache=True, nogil=True)
+def strongest_within(sources, strength, ptr, nbr, rings, hops, queue, m, nxt, out):
+    """On every vertex ``i`` within ``rings`` hops of ``sources``, the
+    strongest of them within that reach: ``out[i] = max_j strength_j`` over
+    the sources ``j`` at most ``rings`` hops from ``i``. A max of strengths: a
+    source whose strength grows from 0 adds nothing at first, so the set it
+    reaches grows without a jump, where the reach of a set of sources
+    switches ``rings`` rings on at once. ``hops`` as for
+    :func:`ring_distance` (reset it on ``queue[:n]`` after); ``m`` (n,) and
+    ``nxt`` are scratch. Returns ``n``, the vertices reached, listed in
+    ``queue[:n]``."""
+    n = ring_distance(sources, ptr, nbr, hops, rings + 1, queue)
+    for k in range(n):
+        m[queue[k]] = 0.0
+    for a in range(sources.shape[0]):
+        m[sources[a]] = max(m[sources[a]], strength[a])
+    for _ in range(rings):
+        for k in range(n):                  # one more ring: the strongest neighbour
+            i = queue[k]
+            best = m[i]
+            for b in range(ptr[i], ptr[i + 1]):
+                q = nbr[b]
+                if hops[q] <= rings:
+                    best = max(best, m[q])
+            nxt[k] = best
+        for k in range(n):
+            m[queue[k]] = nxt[k]
+    for k in range(n):
+        out[queue[k]] = m[queue[k]]
+    return n

@@ -7,11 +7,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..kernels.smoothing import cap_relief
-from ..kernels.topology import ring_distance
+from ..kernels.topology import ring_distance, strongest_within
 
 #: Sweeps of :meth:`Stage.cap_relief` (a spike is cut in the first; the
 #: others settle the ring around it).
 RELIEF_PASSES = 4
+#: How far the contact moves a vertex before the stages after it take it as
+#: fully in contact, in mean edges (at the counts' resolution, like the rings).
+FULL_PUSH = 1.0
 
 
 @dataclass
@@ -50,6 +53,11 @@ class Frame:
     touched : list of int arrays
         Surface vertices the collision stage moved (skin in contact), so later
         stages leave them where they are.
+    pushed : tuple or None
+        Set by the contact stage: ``(touched, shift)``, its entry of
+        ``touched`` and how far it moved each of those vertices (m). A
+        contact fades in from nothing, so ``shift`` is small where
+        ``touched`` switches a vertex on; the mush takes its strength from it.
     clearance : (n,) float or None
         Set by the contact stage: at least how far each surface vertex was
         from the flesh of the parts it tests against the vertex's own and that
@@ -79,6 +87,7 @@ class Frame:
     unskinned: object = None
     counts: dict = field(default_factory=dict)
     touched: list = field(default_factory=list)
+    pushed: tuple | None = None
     clearance: np.ndarray | None = None
     memo: dict = field(default_factory=dict)
 
@@ -100,6 +109,8 @@ class Stage:
         #: the skin weights this pipeline skins with (``weight_scheme``)
         self.weights = character.rig.weights(params["weight_scheme"])
         self._relief = None
+        self._full = None
+        self._spread = None
 
     def __call__(self, frame: Frame) -> None:  # pragma: no cover - interface
         raise NotImplementedError
@@ -113,6 +124,41 @@ class Stage:
         """Parameter ``key``, a count of Laplacian passes, at this character's
         resolution (grown by the square of its smoothing scale)."""
         return int(round(int(self.params[key]) * self.character.smoothing_scale ** 2))
+
+    def contact_reach(self, fr: Frame, rings: int) -> tuple[np.ndarray, np.ndarray]:
+        """The skin within ``rings`` rings of skin the stages before moved into
+        contact, sorted, and how fully each vertex of it is near contact
+        (0-1): its strongest source within that reach
+        (:func:`~skin_node.kernels.topology.strongest_within`). A vertex the
+        contact stage projected is as strong as the contact moved it, in
+        full from :data:`FULL_PUSH` mean edges: a contact fades in from
+        nothing, and so does what the stages after it do round it. Skin
+        another stage moved (untangle, the paper's collision) is a source in
+        full."""
+        push = fr.pushed
+        verts = [t for t in fr.touched if push is None or t is not push[0]]
+        strength = [np.ones(len(t)) for t in verts]
+        if push is not None:
+            touched, shift = push
+            ch = self.character
+            if self._full is None:
+                self._full = FULL_PUSH * ch.smoothing_scale * ch.mean_edges
+            verts.append(touched)
+            strength.append(np.minimum(1.0, shift / self._full[touched]))
+        if not verts:
+            return np.zeros(0, dtype=np.int64), np.zeros(0)
+        src, strength = np.concatenate(verts).astype(np.int64), np.concatenate(strength)
+        if self._spread is None:
+            n = len(self.character.V)
+            self._spread = (np.full(n, 1 << 30, dtype=np.int64), np.empty(n, dtype=np.int64),
+                            np.empty(n), np.empty(n), np.empty(n))
+        hops, queue, m, nxt, out = self._spread
+        rig = self.character.rig
+        reached = strongest_within(src, strength, rig.adj_ptr, rig.adj, rings, hops, queue, m,
+                                   nxt, out)
+        zone = np.sort(queue[:reached])
+        hops[zone] = 1 << 30
+        return zone, out[zone]
 
     def cap_relief(self, X: np.ndarray, base: np.ndarray, verts: np.ndarray,
                    scale: float = 1.0) -> int:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels.contact import boxed_vertices, contact_pairs, hold_planes, project_contacts
-from ..kernels.smoothing import gather_weights, laplacian_smooth, ring_layout
+from ..kernels.smoothing import EVEN, gather_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from .base import Frame, Stage
 from ..kernels.skinning import matrices_to_dual_quaternions
@@ -190,7 +190,7 @@ class Contact(Stage):
             # projection left them (a dot product a vertex) between exact
             # projections of the skin near the contact (which find skin that
             # smoothing pushed into contact)
-            laplacian_smooth(X, X0, True, ring, loc, lptr, lnbr, lw, 0.5, passes, L, buf)
+            laplacian_smooth(X, X0, True, ring, loc, lptr, lnbr, lw, 0.5, EVEN, passes, L, buf)
             if (r + 1) % exact == 0 or r == rounds - 1:
                 project_contacts(X, self.V0, near, *args, moved, plane, hit, True,
                                  self._pre, clear, reach, self._apart)
@@ -202,7 +202,7 @@ class Contact(Stage):
             # its own; spread those steps over their neighbours, the
             # constraints held by their tangent planes (without it CesiumMan's
             # walk kept three times the sharp folds)
-            laplacian_smooth(X, X0, True, ring, loc, lptr, lnbr, lw, 0.5, settle, L, buf)
+            laplacian_smooth(X, X0, True, ring, loc, lptr, lnbr, lw, 0.5, EVEN, settle, L, buf)
             hold_planes(X, zone, moved, plane)
         # the projections move each vertex in contact on its own: a vertex
         # carried deep into the other side's flesh stands out of its ring as
@@ -214,3 +214,4 @@ class Contact(Stage):
         touched = np.flatnonzero(moved)
         fr.counts["contact_vertices"] = len(touched)
         fr.touched.append(touched)
+        fr.pushed = (touched, np.sqrt(((X[touched] - X0[touched]) ** 2).sum(axis=1)))

@@ -3,9 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels.smoothing import (gather_weights, laplacian_smooth,
-                                 restore_detail, ring_layout, vertex_faces)
-from ..kernels.topology import ring_distance
+from ..kernels.smoothing import (gather_weights, laplacian_smooth, restore_detail,
+                                 ring_layout, vertex_faces)
 from ..kernels.shape import clearance_caps, hold_clear
 from .base import Frame, Stage
 from .shape import CLEAR_SHARE
@@ -23,7 +22,11 @@ class Mush(Stage):
     vertex's frame (:mod:`skin_node.kernels.smoothing`). Skin that moved
     rigidly comes out unchanged, so only what the contact bent is touched:
     the vertices it moved and ``mush_rings`` rings around them, ``mush_passes``
-    weighted Laplacian passes, the zone's border held. Skin too coarse for
+    weighted Laplacian passes, the zone's border held. Each vertex's step is
+    as strong as the contact's move near it (:meth:`Stage.contact_reach`),
+    so a vertex the contact starts to move brings its rings in gently: a
+    zone of full strength switched them from held to smoothed in one frame,
+    a pop of up to 5 mm on the 2k arm's bending elbow. Skin too coarse for
     that to stay local (:attr:`~skin_node.Character.resolved`: CesiumMan's
     40 mm edges around 40 mm limbs, where smoothing a few rings reaches across
     the joint, cuts the bend's corner and loses a fifth of the shoulder
@@ -53,27 +56,24 @@ class Mush(Stage):
         # the mush fades itself out on coarse skin, so its hold is not scaled
         # by resolution as inflation's is (clearance_caps' resolved: ones)
         self._unscaled, self._near = np.ones(n), np.empty(n)
-        self._hops = np.full(n, 1 << 30, dtype=np.int64)
-        self._queue = np.empty(n, dtype=np.int64)
 
     def __call__(self, fr: Frame) -> None:
         passes = self.passes("mush_passes")
         if not fr.touched or passes == 0:
             fr.counts["mush_vertices"] = 0
             return
-        src = np.unique(np.concatenate(fr.touched)).astype(np.int64)
-        rings = self.rings("mush_rings")
-        reached = ring_distance(src, self._ptr, self._adj, self._hops, rings + 1, self._queue)
-        zone = np.sort(self._queue[:reached])
-        self._hops[zone] = 1 << 30
+        zone, kw = self.contact_reach(fr, self.rings("mush_rings"))
+        if not len(zone):
+            fr.counts["mush_vertices"] = 0
+            return
         ring, loc, lptr, lnbr = ring_layout(zone, self._ptr, self._adj)
         lw = gather_weights(zone, self._ptr, self._w_adj, lptr)
         X, SX, SV = fr.surface, self._SX, self._SV
         SX[ring] = X[ring]
         SV[ring] = self.V0[ring]
         L, buf = np.empty((len(ring), 3)), np.empty((len(zone), 3))
-        laplacian_smooth(SX, SX, False, ring, loc, lptr, lnbr, lw, 0.5, passes, L, buf)
-        laplacian_smooth(SV, SV, False, ring, loc, lptr, lnbr, lw, 0.5, passes, L, buf)
+        laplacian_smooth(SX, SX, False, ring, loc, lptr, lnbr, lw, 0.5, kw, passes, L, buf)
+        laplacian_smooth(SV, SV, False, ring, loc, lptr, lnbr, lw, 0.5, kw, passes, L, buf)
         self._fade[zone] = self.resolved[zone]
         start = X.copy() if fr.clearance is not None else None
         restore_detail(X, self.V0, SX, SV, zone, self.F, self._vf_ptr, self._vf, self._first,

@@ -10,7 +10,7 @@ from ..kernels.shape import (bent_edges, cone_volume_gradient, enclosed_volume, 
                              clearance_caps, envelope_room, even_layer, hold_clear,
                              keep_region_volume, limit_bulge, moved_rows, parting_pairs,
                              pull_bulge, region_corners, split_fade)
-from ..kernels.smoothing import gather_weights, laplacian_smooth, ring_layout
+from ..kernels.smoothing import EVEN, gather_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from ..metrics import interior_edges
 from .base import Frame, KeyedCache, Stage
@@ -121,7 +121,7 @@ class Bulge(Stage):
             # they change so does the pull: smooth the pull, not the skin, then
             # take back what the smoothing gave away at the peaks (the
             # projection leaves skin within its limits alone)
-            laplacian_smooth(X, base, True, ring, loc, lptr, lnbr, lw, 0.5, passes,
+            laplacian_smooth(X, base, True, ring, loc, lptr, lnbr, lw, 0.5, EVEN, passes,
                              np.empty((len(ring), 3)), np.empty((len(loc), 3)))
             limit_bulge(X, verts, self.seg, fr.seg_A, fr.seg_B, fade, allowed)
 
@@ -405,7 +405,7 @@ class Inflate(Stage):
         deficit = self._layer(fr, v, t, corners, m, target, deficit, lim, 3, True, start, near)
         passes = self.passes("inflate_smoothing")
         if passes:
-            laplacian_smooth(X, base, True, ring, loc, lptr, lnbr, lw, 0.5, passes,
+            laplacian_smooth(X, base, True, ring, loc, lptr, lnbr, lw, 0.5, EVEN, passes,
                              np.empty((len(ring), 3)), np.empty((len(loc), 3)))
             if target < self.mesh_vol0:
                 # smoothing spreads the layer onto skin the envelope held:

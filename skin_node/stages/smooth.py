@@ -3,10 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels.smoothing import laplacian_smooth, ring_layout
+from ..kernels.smoothing import EVEN, laplacian_smooth, ring_layout
 from .base import Frame, KeyedCache, Stage
-
-_EVEN = np.empty(0)        # an even mean of the one ring (the paper's)
 
 
 class Smooth(Stage):
@@ -58,4 +56,4 @@ class Smooth(Stage):
             return
         kf = k * float(fr.fade[fr.bent].max())
         laplacian_smooth(fr.surface, fr.surface_base, mode != "position", ring, loc, lptr,
-                         lnbr, _EVEN, kf, n, self._ring[:len(ring)], self._buf[:len(vs)])
+                         lnbr, EVEN, kf, EVEN, n, self._ring[:len(ring)], self._buf[:len(vs)])
