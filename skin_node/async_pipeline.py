@@ -18,6 +18,10 @@ the change between the last two: at most that change again, back as far as
 the older one when the motion turns), and a correction whose pose lies far
 from the one asked (a jump: a bag restarted) fades to plain DQS until the
 solver catches up. Before the solver's first answer the skin is plain DQS.
+How far two poses lie apart is how far each joint turned between them, not
+how far its Euler channels moved: near a channel's gimbal lock (a knee bent
+past 90 degrees in CMU's running mocap) the channels swing by 1.5 rad between
+two frames while the joint turns by 5 degrees.
 
 The solver is any object with a pipeline's ``deform``, ``params``,
 ``set_params``, ``timings``, ``counts`` and ``warm_up``: a
@@ -37,6 +41,7 @@ import numpy as np
 from .kernels.skinning import dqs_carry, dqs_offsets, matrices_to_dual_quaternions
 from .kernels.threads import allow_concurrent_calls, check_concurrent_calls
 from .pipeline import DEFAULT_STAGES, Pipeline
+from .skeleton import euler_xyz_to_matrix
 
 #: Niceness of the solver (its thread, or its process): the answers, the
 #: executor and DDS come first. Through ROS on two cores (the squat at 120 Hz,
@@ -45,9 +50,9 @@ from .pipeline import DEFAULT_STAGES, Pipeline
 #: correction no older.
 SOLVER_NICE = 10
 
-#: The largest change of any joint channel (rad) between the pose asked and
-#: the one a correction was solved for at which that correction still counts
-#: in full, and the change at which it is gone (plain DQS).
+#: The largest turn of any joint (rad) between the pose asked and the one a
+#: correction was solved for at which that correction still counts in full,
+#: and the turn at which it is gone (plain DQS).
 STALE = (0.5, 1.5)
 
 
@@ -94,14 +99,14 @@ class AsyncPipeline:
         self._n = len(character.V)
         self._weights = character.rig.weights(self.params["weight_scheme"]) \
             if character.rig is not None else None
-        # the joint channels (not the root's: moving the whole body changes no correction)
+        # the joints (not the root: moving the whole body changes no correction)
         skel = character.skeleton
-        self._joint_channels = np.array(
-            [3 + 3 * j + a for j in range(skel.n_joints) if skel.parents[j] >= 0
-             for a in range(3)], dtype=np.int64)
-        # the newest correction: (offsets (n, 3), its pose's joint channels, its
-        # number, and since the one before: the offsets' change, the channels'
-        # change and its squared length (0 when there was none))
+        self._joints = np.array([j for j in range(skel.n_joints) if skel.parents[j] >= 0],
+                                dtype=np.int64)
+        # the newest correction: (offsets (n, 3), its pose's joint rotations,
+        # its number, and since the one before: the offsets' change, each
+        # joint's turn as a rotation vector, flat, and its squared length (0
+        # when there was none))
         self._last: tuple | None = None
         self._zero = np.zeros((self._n, 3))
         self.timings: dict = {}
@@ -167,14 +172,15 @@ class AsyncPipeline:
         fr = front.frame(q)
         riders = self.character.passengers
         out = np.empty((self._n + (len(riders) if riders else 0), 3))
-        p = fr.q[self._joint_channels]
+        p = self._rotations(fr.q)
         last = self._last                   # the solver replaces it, never edits it
         C, D, a, b = self._zero, self._zero, 0.0, 0.0
         if last is not None:
             C, p_last, _, D, step, dd = last
-            a = _fresh(p - p_last)
+            turn = turns(p_last, p)
+            a = _fresh(turn)
             if dd > 1e-12 and a > 0.0:
-                b = a * min(1.0, max(-1.0, float((p - p_last) @ step) / dd))
+                b = a * min(1.0, max(-1.0, float(turn.ravel() @ step) / dd))
         w = self._weights
         if w is not None:
             dqs_carry(self.character.V, w.Widx, w.Wval, matrices_to_dual_quaternions(fr.M), C, D,
@@ -196,6 +202,10 @@ class AsyncPipeline:
         self.counts = {**self._solver_counts, "correction_lag": self.lag,
                        "correction_share": a}
         return out
+
+    def _rotations(self, q: np.ndarray) -> np.ndarray:
+        """(k, 3, 3) the pose rotations of the joints (the root's left out)."""
+        return euler_xyz_to_matrix(q[3:].reshape(-1, 3)[self._joints])
 
     # ------------------------------------------------------------ the solver
     def _run(self) -> None:
@@ -248,7 +258,8 @@ class AsyncPipeline:
             if generation == self._generation:      # not solved with parameters since changed
                 # and the change since the last solve, which the answers extrapolate
                 last = self._last
-                D, step = (C - last[0], p - last[1]) if last is not None else (self._zero, p * 0.0)
+                D, step = (C - last[0], turns(last[1], p).ravel()) if last is not None else \
+                    (self._zero, np.zeros(3 * len(p)))
                 self._last = (C, p, seq, D, step, float(step @ step))
                 self.solved += 1
 
@@ -339,12 +350,25 @@ class AsyncPipeline:
         self.close()
 
 
-def _fresh(change: np.ndarray) -> float:
-    """How much a correction counts whose pose's joint channels differ by
-    ``change`` from the pose asked (:data:`STALE`), angles wrapped."""
-    if not len(change):
+def turns(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """(k, 3) rotation vectors of the turns ``A_j^T B_j`` that take each
+    rotation of ``A`` (k, 3, 3) to ``B``'s: axis times angle, the angle in
+    [0, pi] and free of any Euler angles' gimbal lock."""
+    R = np.einsum("jba,jbc->jac", A, B)
+    v = 0.5 * np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0],
+                        R[:, 1, 0] - R[:, 0, 1]], axis=1)       # axis times sin(angle)
+    s = np.sqrt((v * v).sum(axis=1))
+    angle = np.arctan2(s, 0.5 * (np.trace(R, axis1=1, axis2=2) - 1.0))
+    return v * np.where(s > 1e-12, angle / np.maximum(s, 1e-300), 1.0)[:, None]
+
+
+def _fresh(turn: np.ndarray) -> float:
+    """How much a correction counts whose pose's joints are each turned by
+    ``turn`` (rotation vectors, :func:`turns`) from the pose asked
+    (:data:`STALE`)."""
+    if not len(turn):
         return 1.0
-    d = float(np.abs((change + np.pi) % (2.0 * np.pi) - np.pi).max())
+    d = float(np.sqrt((turn * turn).sum(axis=1)).max())
     x = min(1.0, max(0.0, (STALE[1] - d) / (STALE[1] - STALE[0])))
     return x * x * (3.0 - 2.0 * x)
 

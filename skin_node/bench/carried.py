@@ -7,8 +7,10 @@ a live stream would reach it, with plain DQS timed right after each answer
 
 - the answer's time per pose against DQS's median (median and 90th
   percentile: a 120 Hz consumer sees the tail), and DQS's own time;
-- how many poses old the correction was (median, 90th percentile, most) and
-  the poses the solver never took;
+- how many poses old the correction was (median, 90th percentile, most),
+  the poses the solver never took, and the answers that carried less than
+  the whole correction (``faded``: a pose far from the solved one, or a
+  jump);
 - on every ``every``-th answer, after the stream: exact intersecting pairs,
   sharp folds (``folds90``) and roughness of the answer, of the pipeline's
   skin solved for that very pose (the inline reference) and of DQS's, and the
@@ -24,6 +26,7 @@ import time
 import numpy as np
 
 from ..async_pipeline import AsyncPipeline
+from ..motion import load_motion
 from ..pipeline import Pipeline
 from .measure import Progress, load_scene, make_motion, parse_scene, scene_metrics
 
@@ -66,20 +69,25 @@ def compare_skins(scene: str, poses: list, skins: list, progress: bool = False) 
 
 def run_carried(scene: str = "humanoid:24000", clips=("walk", "squat"), every: int = 4,
                 warm_frames: int = 8, progress: bool = True) -> list:
-    """One row per clip; see the module docstring."""
+    """One row per clip (a built-in clip, or a BVH file retargeted to the
+    character); see the module docstring."""
     sc = parse_scene(scene)
     ch, _ = load_scene(sc)
     rows = []
     for clip in clips:
-        mo = make_motion(clip, ch)
-        if mo is None or mo.x is not None:
-            raise ValueError(f"'{clip}' is not a clip of {scene}")
-        frames, rate = np.asarray(mo.frames), float(mo.fps)
+        if clip.lower().endswith(".bvh"):
+            c = load_motion(sc.character, bvh=clip, skeleton=ch.skeleton)
+            frames, rate, clip = np.asarray(c.frames), float(c.fps), "bvh:" + c.name
+        else:
+            mo = make_motion(clip, ch)
+            if mo is None or mo.x is not None:
+                raise ValueError(f"'{clip}' is not a clip of {scene}")
+            frames, rate = np.asarray(mo.frames), float(mo.fps)
         dqs = Pipeline.preset(ch, "dqs")
         with AsyncPipeline(ch) as ap:
             t_warm = ap.warm_up()
             dqs.deform(frames[0])
-            answer_ms, dqs_ms, lags, kept = [], [], [], []
+            answer_ms, dqs_ms, lags, kept, faded = [], [], [], [], 0
             bar = Progress(len(frames), f"{scene} {clip} at {rate:.0f} Hz", progress)
             t0 = time.perf_counter()
             for k, q in enumerate(frames):
@@ -95,6 +103,8 @@ def run_carried(scene: str = "humanoid:24000", clips=("walk", "squat"), every: i
                 answer_ms.append((b - a) * 1e3)
                 dqs_ms.append((e - b) * 1e3)
                 lags.append(ap.lag)
+                if k >= warm_frames and ap.counts["correction_share"] < 1.0:
+                    faded += 1
                 if k >= warm_frames and k % every == 0:
                     kept.append((q, V))
                 bar.update()
@@ -109,6 +119,7 @@ def run_carried(scene: str = "humanoid:24000", clips=("walk", "squat"), every: i
                "answer_x_dqs_p90": float(np.percentile(answer_ms, 90)) / d50,
                "lag_p50": float(np.median(L)), "lag_p90": float(np.percentile(L, 90)),
                "lag_max": int(L.max()), "solves_skipped": skipped, "solves_failed": failed,
+               "faded": faded,
                "warm_up_s": t_warm}
         row.update(compare_skins(scene, [q for q, _ in kept], [V for _, V in kept], progress))
         rows.append(row)
@@ -118,14 +129,14 @@ def run_carried(scene: str = "humanoid:24000", clips=("walk", "squat"), every: i
 def carried_table(rows: list) -> str:
     """Markdown: the answer against DQS, the correction's age, the skins' measures."""
     out = ["| scene | motion | answer x DQS p50 / p90 (DQS ms) | correction age p50 / p90 / max "
-           "(poses) | pairs answer / solved / DQS | folds90 answer / solved / DQS | "
-           "roughness answer / solved | from solved p50 / max (mm) |",
+           "(poses); answers faded | pairs answer / solved / DQS | folds90 answer / solved / DQS"
+           " | roughness answer / solved | from solved p50 / max (mm) |",
            "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         out.append(
             f"| {r['scene']} | {r['motion']} at {r['rate_hz']:.0f} Hz | "
             f"{r['answer_x_dqs_p50']:.2f} / {r['answer_x_dqs_p90']:.2f} ({r['dqs_ms_p50']:.2f}) | "
-            f"{r['lag_p50']:.0f} / {r['lag_p90']:.0f} / {r['lag_max']} | "
+            f"{r['lag_p50']:.0f} / {r['lag_p90']:.0f} / {r['lag_max']}; {r.get('faded', '-')} | "
             f"{r['answer_pairs']} / {r['solved_pairs']} / {r['dqs_pairs']} | "
             f"{r['answer_folds90']} / {r['solved_folds90']} / {r['dqs_folds90']} | "
             f"{r['answer_roughness'] / max(r['solved_roughness'], 1e-12):.3f} x | "

@@ -597,7 +597,8 @@ def _parser() -> argparse.ArgumentParser:
     k = sub.add_parser("carried", help="the correction solved behind the answers, streamed "
                                        "in real time: time against DQS, age, skin measures")
     k.add_argument("--scene", default="humanoid:24000")
-    k.add_argument("--clips", default="walk,squat")
+    k.add_argument("--clips", default="walk,squat",
+                   help="built-in clips, or BVH files retargeted to the character")
     k.add_argument("--every", type=int, default=4, help="measure every n-th answer")
     common(k)
 
