@@ -41,7 +41,6 @@ import numpy as np
 from .kernels.skinning import dqs_carry, dqs_offsets, matrices_to_dual_quaternions
 from .kernels.threads import allow_concurrent_calls, check_concurrent_calls
 from .pipeline import DEFAULT_STAGES, Pipeline
-from .skeleton import euler_xyz_to_matrix
 
 #: Niceness of the solver (its thread, or its process): the answers, the
 #: executor and DDS come first. Through ROS on two cores (the squat at 120 Hz,
@@ -205,7 +204,7 @@ class AsyncPipeline:
 
     def _rotations(self, q: np.ndarray) -> np.ndarray:
         """(k, 3, 3) the pose rotations of the joints (the root's left out)."""
-        return euler_xyz_to_matrix(q[3:].reshape(-1, 3)[self._joints])
+        return self.character.skeleton.local_rotations(q)[self._joints]
 
     # ------------------------------------------------------------ the solver
     def _run(self) -> None:
