@@ -132,6 +132,9 @@ PIPELINE_PARAMS = {
     "untangle_depth": ParamSpec(float, 0.5, 0.0, 5.0, "corners further than this behind the "
                                 "other triangle's plane are left to the contact, in mean "
                                 "edges"),
+    "untangle_spread": ParamSpec(float, 0.5, 0.0, 1.0, "share of a pushed corner's move "
+                                 "its unpushed neighbours take (a corner pushed alone "
+                                 "folds its edges)"),
     "untangle_reach": ParamSpec(float, 2.0, 0.0, 20.0, "coarse skin this near another part's "
                                 "flesh is tested, in mean edges"),
     "bulge_limit": ParamSpec(float, 0.1, 0.001, 2.0, "the most skin stands out from its bone "

@@ -613,21 +613,56 @@ def test_push_apart_parts_two_crossing_triangles_and_leaves_deep_ones():
     pairs = np.array([[0, 1]])
     n = len(X)
     gap, depth = np.full(n, 0.001), np.full(n, 0.01)
+    ptr, adj = np.zeros(n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64)
     disp, count, touched = np.zeros((n, 3)), np.zeros(n, dtype=np.int64), np.empty(n, np.int64)
     assert triangles_intersect(X, 0, 1, 2, 3, 4, 5)
     Y = X.copy()
     for _ in range(4):
         if not triangles_intersect(Y, 0, 1, 2, 3, 4, 5):
             break
-        assert push_apart(Y, F, pairs, gap, depth, disp, count, touched) > 0
+        assert push_apart(Y, F, pairs, gap, depth, 0.5, ptr, adj, disp, count, touched)[0] > 0
     assert not triangles_intersect(Y, 0, 1, 2, 3, 4, 5)
     assert np.abs(Y - X).max() < 0.006, np.abs(Y - X).max()
     assert not disp.any() and not count.any()
     deep = X.copy()
     deep[3, 2] = -0.03
     D = deep.copy()
-    push_apart(D, F, pairs, gap, depth, disp, count, touched)
+    push_apart(D, F, pairs, gap, depth, 0.5, ptr, adj, disp, count, touched)
     assert D[3, 2] == deep[3, 2]
+
+
+def test_push_apart_takes_the_pushed_corners_neighbours_along_by_the_spread():
+    """Each unpushed neighbour of a pushed corner moves by ``spread`` times
+    the mean of its pushed neighbours' moves; with no spread only pushed
+    corners move, by the same amounts."""
+    from skin_node.kernels.untangle import push_apart
+    from skin_node.rigging.build import one_ring
+    # a flat triangle (z = 0) and a fan of three standing through it from below
+    X = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.0],
+                  [0.02, 0.02, -0.003], [0.05, 0.02, 0.08], [0.02, 0.05, 0.08],
+                  [0.06, 0.06, 0.09]])
+    F = np.array([[0, 1, 2], [3, 4, 5], [4, 6, 5]])
+    n = len(X)
+    ptr, adj = one_ring(F, n)
+    pairs = np.array([[0, 1]])
+    gap, depth = np.full(n, 0.001), np.full(n, 0.01)
+    disp, count, touched = np.zeros((n, 3)), np.zeros(n, dtype=np.int64), np.empty(n, np.int64)
+    alone = X.copy()
+    p0, m0 = push_apart(alone, F, pairs, gap, depth, 0.0, ptr, adj, disp, count, touched)
+    assert p0 == m0 > 0
+    pushed = set(touched[:p0].tolist())
+    Y = X.copy()
+    p, m = push_apart(Y, F, pairs, gap, depth, 0.5, ptr, adj, disp, count, touched)
+    assert p == p0 and set(touched[:p].tolist()) == pushed and m > p
+    np.testing.assert_array_equal(Y[list(pushed)], alone[list(pushed)])
+    for u in touched[p:m]:
+        nb = [v for v in adj[ptr[u]:ptr[u + 1]] if v in pushed]
+        assert u not in pushed and nb
+        want = 0.5 * np.mean([Y[v] - X[v] for v in nb], axis=0)
+        np.testing.assert_allclose(Y[u] - X[u], want, atol=1e-15)
+    untouched = [v for v in range(n) if v not in set(touched[:m].tolist())]
+    np.testing.assert_array_equal(Y[untouched], X[untouched])
+    assert (Y[6] == X[6]).all() and not disp.any() and not count.any()
 
 
 def test_mesh_tree_queries_agree_with_brute_force():
