@@ -155,11 +155,11 @@ def run(ch, clip, q):
 def test_coarse_contact_against_dqs_and_its_settling(characters, motions):
     """CesiumMan's arms lie on its hips through the CMU walk (every 12th
     frame, automatic weights), on skin coarser than the limbs are thick.
-    Exact intersecting pairs stay under 30% of DQS's (97 of 4,873 measured),
+    Exact intersecting pairs stay under 30% of DQS's (79 of 4,873 measured),
     and the settling pass after the contact's last projection (one
     Laplacian pass with the constraints held) takes out more than half of the
     sharp folds the projection leaves, measured without the relief cap that
-    comes after it (33 against 151)."""
+    comes after it (33 against 153)."""
     from skin_node.kernels.intersect import SelfIntersections
     from skin_node.metrics import SurfaceQuality
     ch = characters["automatic"]
@@ -182,12 +182,12 @@ def test_relief_cap_takes_the_spikes_out_of_coarse_contact(characters, motions):
     (spikes a viewer sees at the elbows and where the hands meet the hips).
     Through the CMU walk (every 12th frame) the relief cap leaves at most
     40% of the sharp folds the default leaves without it on automatic
-    weights (measured 1 against 33) and at most 80% on the artist's (132
-    against 181), no more than DQS's on the artist's (241), roughness below
-    what it was without it and within 1% of DQS's (1.0224 against 1.0284 and
-    DQS's 1.0219; the file's 1.0491, 1.0529, 1.0468), and the exact
+    weights (measured 0 against 33) and at most 80% on the artist's (124
+    against 170), no more than DQS's on the artist's (241), roughness below
+    what it was without it and within 1% of DQS's (1.0222 against 1.0283 and
+    DQS's 1.0219; the file's 1.0490, 1.0527, 1.0468), and the exact
     intersecting pairs at most 10% of DQS's on automatic weights, 20% on
-    the artist's (97 of 4,873; 366 of 5,295)."""
+    the artist's (79 of 4,873; 408 of 5,295)."""
     from skin_node.kernels.intersect import SelfIntersections
     from skin_node.metrics import SurfaceQuality
     q = motions["walk"][2]
@@ -221,7 +221,7 @@ def test_inflation_is_withheld_where_it_would_fold_or_cross(monkeypatch, charact
     and laid on the skin left, every 8th frame: sharp folds at most DQS's
     and exact intersecting pairs at most 10% of DQS's, the punch's folds at
     most a fifth of those without withholding (measured 7 against 365, DQS
-    205), the walk's pairs at most 60% (404 against 1,291, DQS 7,844; 5.2%),
+    205), the walk's pairs at most 60% (470 against 1,352, DQS 7,844; 6.0%),
     roughness no higher
     than without, and the whole mesh's smallest volume at least DQS's
     (0.978 / 0.975 against DQS's 0.976 / 0.960)."""
@@ -260,10 +260,10 @@ def test_whole_mesh_volume_is_laid_again_after_the_relief_cap(monkeypatch, chara
     """On CesiumMan's file weights the spikes the relief cap cuts out of the
     inflation carried much of the whole mesh's volume. Laid again on the
     skin the cut left, every 8th frame: the whole mesh keeps at least 0.97
-    of its rest volume at every frame (measured 0.975 / 0.978; 0.959 / 0.966
+    of its rest volume at every frame (measured 0.975 / 0.978; 0.960 / 0.967
     without, DQS 0.960 / 0.958), with at most 5% more intersecting pairs and
-    sharp folds than without (404 / 1,625 pairs against 387 / 1,627; folds
-    189 / 1,427 against 186 / 1,420), still at most 10% of DQS's pairs and
+    sharp folds than without (470 / 1,878 pairs against 450 / 1,880; folds
+    186 / 1,394 against 183 / 1,387), still at most 10% of DQS's pairs and
     no more folds than DQS."""
     import skin_node.stages.shape as shape
     from skin_node.bench.measure import mesh_volume
@@ -295,14 +295,14 @@ def test_untangle_parts_coarse_triangles_without_crumpling(characters, motions, 
     12th frame), coarse triangles cross between vertices the contact keeps
     apart. The untangle pushes such pairs apart: the exact intersecting
     pairs fall to at most 60% of what the default leaves without it, and
-    at most a fifth of DQS's (measured: 1,057 -> 97 of DQS's 4,873 on
-    automatic weights, 1,302 -> 366 of 5,295 on the file's). Its rule is
+    at most a fifth of DQS's (measured: 1,057 -> 79 of DQS's 4,873 on
+    automatic weights, 1,302 -> 408 of 5,295 on the file's). Its rule is
     that same exact test, so the count alone does not grade it. Judged
     without the relief cap (which cuts folds before and after it), sharp
-    folds rise by at most 15% (29 -> 33; the file's 256 -> 181), roughness
+    folds rise by at most 15% (29 -> 33; the file's 256 -> 170), roughness
     by at most 1%, and the whole mesh keeps its volume within 0.5% of what
     it had without the untangle (inflation gives it back). (With the cap,
-    1 -> 1 and 173 -> 132.)"""
+    1 -> 0 and 173 -> 124.)"""
     from skin_node import DEFAULT_STAGES
     from skin_node.bench.measure import mesh_volume
     from skin_node.kernels.intersect import SelfIntersections
@@ -330,29 +330,49 @@ def test_untangle_parts_coarse_triangles_without_crumpling(characters, motions, 
     assert o["volume"] >= 0.995 * w["volume"], out
 
 
-def test_untangle_takes_a_pushed_corners_neighbours_along(characters, motions):
-    """The untangle pushes a 40 mm triangle's corner out of the other part's
-    triangle; pushed alone, past neighbours left where they lay, its edges
-    folded sharply and the triangles around it crossed the other part's
-    (CesiumMan's hands on its hips through the CMU walk, automatic weights).
-    Its unpushed neighbours take half its move. Every 4th frame: exact
-    intersecting pairs at most 80% of those with corners pushed alone
-    (measured 209 against 307; DQS 14,473), fewer sharp folds (5 against
-    10; DQS 0, the known limit), roughness no higher."""
+def _sums(ch, qs, pipe) -> dict:
     from skin_node.kernels.intersect import SelfIntersections
     from skin_node.metrics import SurfaceQuality
+    si, sq = SelfIntersections(ch.V, ch.F, 0.0), SurfaceQuality(ch.V, ch.F)
+    Vs = [pipe.deform(x)[:len(ch.V)].copy() for x in qs]
+    return {"pairs": sum(len(si.pairs(V)) for V in Vs),
+            "folds": sum(sq(V)["folds90"] for V in Vs),
+            "rough": float(np.mean([sq(V)["roughness"] for V in Vs]))}
+
+
+def test_untangle_takes_a_pushed_corners_neighbours_along(characters, motions):
+    """The untangle pushes a 40 mm triangle's corner out of the other part's
+    triangle; pushed alone, past neighbours left where they lay, the
+    triangles around it crossed the other part's instead (CesiumMan's hands
+    on its hips through the CMU walk, automatic weights). Its unpushed
+    neighbours take half its move. Every 4th frame: exact intersecting
+    pairs at most 80% of those with corners pushed alone (measured 180
+    against 301; DQS 14,473), sharp folds and roughness no higher (3
+    against 4; DQS 0, the known limit)."""
     ch = characters["automatic"]
     qs = motions["walk"][2][1::4]
-    si, sq = SelfIntersections(ch.V, ch.F, 0.0), SurfaceQuality(ch.V, ch.F)
-    out = {}
-    for name, pipe in (("ours", Pipeline(ch)), ("alone", Pipeline(ch, untangle_spread=0.0))):
-        Vs = [pipe.deform(x)[:len(ch.V)].copy() for x in qs]
-        out[name] = {"pairs": sum(len(si.pairs(V)) for V in Vs),
-                     "folds": sum(sq(V)["folds90"] for V in Vs),
-                     "rough": float(np.mean([sq(V)["roughness"] for V in Vs]))}
-    o, a = out["ours"], out["alone"]
-    assert o["pairs"] <= 0.8 * a["pairs"], out
-    assert o["folds"] < a["folds"] and o["rough"] <= a["rough"], out
+    o, a = _sums(ch, qs, Pipeline(ch)), _sums(ch, qs, Pipeline(ch, untangle_spread=0.0))
+    assert o["pairs"] <= 0.8 * a["pairs"], (o, a)
+    assert o["folds"] <= a["folds"] and o["rough"] <= a["rough"], (o, a)
+
+
+def test_untangle_eases_the_pushes_that_crease_the_skin(monkeypatch, characters, motions):
+    """Pushes along different triangles' normals crease the coarse hand
+    where it lies on the hip. Where a round bent an edge past EASE_BEND
+    degrees, the push at its corners is smoothed. The CMU walk's frames
+    90-99 and 225-239 (every one; automatic weights), where the hands lie
+    on the hips: at most half the sharp folds of the pushes left as they
+    are (measured 4 against 15; DQS 0), at most 10% more exact
+    intersecting pairs (738 against 720; DQS 5,567), roughness no higher."""
+    import skin_node.stages.untangle as untangle
+    ch = characters["automatic"]
+    q = motions["walk"][2]
+    qs = q[np.r_[90:100, 225:240]]
+    o = _sums(ch, qs, Pipeline(ch))
+    monkeypatch.setattr(untangle, "EASE_BEND", 1e9)
+    w = _sums(ch, qs, Pipeline(ch))
+    assert o["folds"] <= 0.5 * w["folds"], (o, w)
+    assert o["pairs"] <= 1.1 * w["pairs"] and o["rough"] <= w["rough"], (o, w)
 
 
 @pytest.fixture(scope="module")
