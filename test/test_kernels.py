@@ -1045,3 +1045,34 @@ def test_bent_edges_marks_the_corners_of_an_edge_bent_past_the_limit():
     assert bent_edges(fold(40), V, F, fa, fb, np.zeros(4, np.bool_), math.radians(30), hit) == 0
     # bent back towards flat: the angle shrank, nothing to mark
     assert bent_edges(V, fold(40), F, fa, fb, moved, math.radians(30), hit) == 0
+
+def test_patches_labels_the_connected_pieces_of_a_vertex_set():
+    """``patches`` against scipy's connected components of the same vertex
+    set's induced graph on an icosphere: two caps and a belt are three
+    patches, each labelled alike throughout, and vertices off the set keep
+    their value."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+    from skin_node.kernels.topology import patches
+    m = trimesh.creation.icosphere(subdivisions=3)
+    nbrs = m.vertex_neighbors
+    n = len(nbrs)
+    ptr = np.cumsum([0] + [len(x) for x in nbrs]).astype(np.int64)
+    nbr = np.concatenate(nbrs).astype(np.int64)
+    z = m.vertices[:, 2]
+    verts = np.flatnonzero((z > 0.6) | (z < -0.6) | (np.abs(z) < 0.1)).astype(np.int64)
+    label = np.full(n, -2, dtype=np.int64)
+    label[verts] = -1
+    k = patches(verts, ptr, nbr, label, np.empty(n, dtype=np.int64))
+    inset = np.zeros(n, dtype=bool)
+    inset[verts] = True
+    rows = np.repeat(np.arange(n), np.diff(ptr))
+    keep = inset[rows] & inset[nbr]
+    A = sp.coo_matrix((np.ones(keep.sum()), (rows[keep], nbr[keep])), shape=(n, n))
+    _, want = connected_components(A.tocsr()[verts][:, verts], directed=False)
+    assert k == 3 == want.max() + 1
+    got = label[verts]
+    assert got.min() == 0 and got.max() == 2
+    # the same partition: each of ours maps to one of scipy's and back
+    assert len(set(zip(got, want))) == 3
+    assert np.all(label[~inset] == -2)

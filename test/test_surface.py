@@ -262,7 +262,10 @@ def test_a_coarse_limb_folded_keeps_its_triangles_apart_too(tmp_path, monkeypatc
     (started at the flesh's surface, inflation's layers swell 11 pairs back
     through), and inflation withheld where its layers run coarse skin through
     another part's or undone where they still fold it (with those, started at
-    the surface leaves none either)."""
+    the surface leaves none either). No more sharp folds than DQS (3
+    against 9): the contact's easing of coarse skin, smoothing the opposite
+    pushes on the two sides of the fold, left 12 where it kept the smoothing
+    even where that creased more."""
     import skin_node.stages.shape as shape
     monkeypatch.setenv("SKIN_NODE_CACHE", str(tmp_path / "cache"))
     ch = load_character(str(capsule(tmp_path / "limb.yaml", h=0.021)), progress=False)

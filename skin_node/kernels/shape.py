@@ -572,3 +572,23 @@ def bent_edges(X, before, F, fa, fb, moved, limit, hit):
                 hit[F[f, r]] = True
                 hit[F[g, r]] = True
     return m
+
+
+@nb.njit(cache=True, nogil=True)
+def bent_by_patch(X, before, F, fa, fb, label, limit, count):
+    """Adds to ``count[p]`` the triangle pairs ``fa[k]``, ``fb[k]`` with a
+    corner on patch ``p`` (``label`` >= 0; the first such corner's) whose
+    dihedral angle grew by more than ``limit`` radians from ``before`` to
+    ``X``, as :func:`bent_edges` counts them."""
+    for k in range(fa.shape[0]):
+        f, g = fa[k], fb[k]
+        p = -1
+        for r in range(3):
+            if p < 0 and label[F[f, r]] >= 0:
+                p = label[F[f, r]]
+            if p < 0 and label[F[g, r]] >= 0:
+                p = label[F[g, r]]
+        if p < 0:
+            continue
+        if _dihedral(X, F, f, g) - _dihedral(before, F, f, g) > limit:
+            count[p] += 1

@@ -62,3 +62,30 @@ def strongest_within(sources, strength, ptr, nbr, rings, hops, queue, m, nxt, ou
     for k in range(n):
         out[queue[k]] = m[queue[k]]
     return n
+
+
+@nb.njit(cache=True, nogil=True)
+def patches(verts, ptr, nbr, label, queue):
+    """Labels the connected patches of ``verts`` (sorted, unique) over the
+    one-ring CSR: ``label[i]`` 0, 1, ... on them. ``label`` must hold -1 on
+    ``verts`` on entry and anything else off them (it is left so there);
+    ``queue`` is scratch. Returns how many patches."""
+    m = 0
+    for a in range(verts.shape[0]):
+        s = verts[a]
+        if label[s] != -1:
+            continue
+        label[s] = m
+        queue[0] = s
+        n, head = 1, 0
+        while head < n:
+            i = queue[head]
+            head += 1
+            for b in range(ptr[i], ptr[i + 1]):
+                k = nbr[b]
+                if label[k] == -1:
+                    label[k] = m
+                    queue[n] = k
+                    n += 1
+        m += 1
+    return m

@@ -12,9 +12,8 @@ from ..kernels.shape import (bent_edges, cone_volume_gradient, enclosed_volume, 
                              pull_bulge, region_corners, split_fade)
 from ..kernels.smoothing import EVEN, gather_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
-from ..metrics import interior_edges
 from .base import Frame, KeyedCache, Stage
-from .untangle import CoarseCrossings
+from .untangle import CoarseCrossings, coarse_edges
 
 
 def _union(verts: list, on: np.ndarray, n: int) -> np.ndarray:
@@ -248,11 +247,7 @@ class Inflate(Stage):
         self._cross = CoarseCrossings(character)
         if self._cross:
             # the pairs of coarse skin's triangles that share an edge
-            fa, fb, _ = interior_edges(F)
-            coarse = np.zeros(len(F), dtype=np.bool_)
-            coarse[self._cross.coarse] = True
-            keep = coarse[fa] | coarse[fb]
-            self._efaces = (fa[keep], fb[keep])
+            self._efaces = coarse_edges(self._cross.F, self._cross.coarse)
 
     def __call__(self, fr: Frame) -> None:
         js = [j for j in np.flatnonzero(fr.bent) if len(self.verts[j])]

@@ -24,6 +24,35 @@ EASE_BEND = 45.0
 EASE_PASSES = 2
 
 
+def coarse_triangles(character):
+    """``(F, fpart, coarse)``: the triangles (int64), each one's part (that
+    of two of its corners, else its first's) and the coarse ones, those of
+    the parts most of whose skin is coarse
+    (:attr:`~skin_node.Character.resolved` below 1: CesiumMan's, none of the
+    built-in characters')."""
+    F = np.ascontiguousarray(character.F, dtype=np.int64)
+    part = character.rig.part
+    p = part[F]
+    fpart = np.ascontiguousarray(np.where(p[:, 1] == p[:, 2], p[:, 1], p[:, 0]))
+    # the coarse parts: most of their skin is (the humanoid's and the arm's
+    # have none; a few coarse vertices at a fine limb's knee or hand are the
+    # contact's to keep apart)
+    J = character.skeleton.n_joints
+    coarse = np.array([np.median(character.resolved[part == j]) < 1.0
+                       if np.any(part == j) else False for j in range(J)])
+    return F, fpart, np.flatnonzero(coarse[fpart])
+
+
+def coarse_edges(F: np.ndarray, coarse: np.ndarray):
+    """``(fa, fb)``: the pairs of triangles that share an edge, one of them
+    among ``coarse``."""
+    fa, fb, _ = interior_edges(F)
+    mask = np.zeros(len(F), dtype=np.bool_)
+    mask[coarse] = True
+    keep = mask[fa] | mask[fb]
+    return fa[keep], fb[keep]
+
+
 class CoarseCrossings:
     """The exact crossing test of coarse skin's triangles against every
     triangle of another part.
@@ -35,18 +64,9 @@ class CoarseCrossings:
     there are none, and then it builds nothing."""
 
     def __init__(self, character):
-        V, F = character.V, np.ascontiguousarray(character.F, dtype=np.int64)
-        self.F = F
-        part = character.rig.part
-        p = part[F]
-        self.fpart = np.ascontiguousarray(np.where(p[:, 1] == p[:, 2], p[:, 1], p[:, 0]))
-        # the coarse parts: most of their skin is (the humanoid's and the
-        # arm's have none; a few coarse vertices at a fine limb's knee or
-        # hand are the contact's to keep apart)
-        J = character.skeleton.n_joints
-        coarse = np.array([np.median(character.resolved[part == j]) < 1.0
-                           if np.any(part == j) else False for j in range(J)])
-        self.coarse = np.flatnonzero(coarse[self.fpart])
+        V = character.V
+        self.F, self.fpart, self.coarse = coarse_triangles(character)
+        F = self.F
         # the tree over every triangle that the pair counts search too
         self._si = SelfIntersections(V, F, 0.0) if len(self.coarse) else None
         self.inq = np.zeros(len(F), dtype=np.bool_)
@@ -140,11 +160,7 @@ class Untangle(Stage):
         self._in2 = np.zeros(m, dtype=np.bool_)
         self._vf_ptr, self._vf = vertex_faces(self.F, n)
         self._ptr, self._adj = character.rig.adj_ptr, character.rig.adj
-        fa, fb, _ = interior_edges(self.F)
-        coarse = np.zeros(len(self.F), dtype=np.bool_)
-        coarse[self.coarse] = True
-        keep = coarse[fa] | coarse[fb]
-        self._efaces = (fa[keep], fb[keep])
+        self._efaces = coarse_edges(self.F, self.coarse)
         self._moved, self._hit = np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.bool_)
         self._near = np.zeros(n, dtype=np.bool_)
         self._disp, self._count = np.zeros((n, 3)), np.zeros(n, dtype=np.int64)
