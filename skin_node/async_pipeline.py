@@ -15,7 +15,8 @@ each vertex's frame it travels with the limb. What a few frames change is
 how deep a contact is: the last two corrections are extrapolated along the
 pose's path (by how far the pose has gone since the last solved one, along
 the change between the last two: at most that change again, back as far as
-the older one when the motion turns), and a correction whose pose lies far
+the older one when the motion turns; the change's trend, averaged over each
+vertex's rings, not its vertex-to-vertex detail), and a correction whose pose lies far
 from the one asked (a jump: a bag restarted) fades to plain DQS until the
 solver catches up. Before the solver's first answer the skin is plain DQS.
 How far two poses lie apart is how far each joint turned between them, not
@@ -39,6 +40,7 @@ import numba
 import numpy as np
 
 from .kernels.skinning import dqs_carry, dqs_offsets, matrices_to_dual_quaternions
+from .kernels.smoothing import ring_means
 from .kernels.threads import allow_concurrent_calls, check_concurrent_calls
 from .pipeline import DEFAULT_STAGES, Pipeline
 
@@ -53,6 +55,18 @@ SOLVER_NICE = 10
 #: correction was solved for at which that correction still counts in full,
 #: and the turn at which it is gone (plain DQS).
 STALE = (0.5, 1.5)
+
+#: Passes of one-ring means over the change between the last two corrections
+#: before it is extrapolated: its trend (a contact deepening over
+#: centimetres) goes on, what changes from vertex to vertex (a crease's fine
+#: detail settling differently between two solves where the skin is crushed)
+#: does not: extrapolated, that overshot and folded skin the solved skin did
+#: not. Each solve taking a fixed number of poses (``skin_bench carried
+#: --solve-poses``, the 24k squat, every 4th answer): 3 poses, sharp folds 2
+#: -> 0 (solved 0), farthest from the solved skin 1.5 -> 1.2 mm at the median
+#: frame; 8 poses, folds 3 -> 2, 2.2 -> 1.8 mm, exact pairs 812 -> 907 (DQS
+#: 13,887): a contact deepening fast is tracked a little less closely.
+TREND_PASSES = 4
 
 
 class AsyncPipeline:
@@ -98,6 +112,10 @@ class AsyncPipeline:
         self._n = len(character.V)
         self._weights = character.rig.weights(self.params["weight_scheme"]) \
             if character.rig is not None else None
+        # the one-ring the change between two corrections is averaged over
+        self._ring = (character.rig.adj_ptr, character.rig.adj) \
+            if character.rig is not None else None
+        self._trend_buf = np.empty((self._n, 3))
         # the joints (not the root: moving the whole body changes no correction)
         skel = character.skeleton
         self._joints = np.array([j for j in range(skel.n_joints) if skel.parents[j] >= 0],
@@ -251,14 +269,20 @@ class AsyncPipeline:
             M = self._front.frame(q).M
             dqs_offsets(self.character.V, w.Widx, w.Wval, matrices_to_dual_quaternions(M),
                         Y[:self._n], C)
+        # the change since the last solve, which the answers extrapolate: its
+        # trend (only this thread replaces _last; set_params clears it and
+        # moves the generation on, which the check below sees)
+        last = self._last
+        if last is not None:
+            D, step = C - last[0], turns(last[1], p).ravel()
+            if self._ring is not None:
+                ring_means(D, *self._ring, TREND_PASSES, self._trend_buf)
+        else:
+            D, step = self._zero, np.zeros(3 * len(p))
         with self._cond:
             self._solver_timings = dict(s.timings)
             self._solver_counts = dict(s.counts)
             if generation == self._generation:      # not solved with parameters since changed
-                # and the change since the last solve, which the answers extrapolate
-                last = self._last
-                D, step = (C - last[0], turns(last[1], p).ravel()) if last is not None else \
-                    (self._zero, np.zeros(3 * len(p)))
                 self._last = (C, p, seq, D, step, float(step @ step))
                 self.solved += 1
 

@@ -285,6 +285,31 @@ def test_carried_streams_in_real_time_and_grades_what_it_answered(tmp_path, caps
     assert 0 <= r["lag_p50"] <= r["lag_max"], r
 
 
+def test_carried_on_a_fixed_schedule_is_repeatable_and_as_old_as_asked(tmp_path, capsys):
+    """skin_bench carried --solve-poses 3: every solve takes exactly 3
+    poses, whatever the machine's speed, so the correction is 3 to 5 poses
+    old, the poses given while the solver works are counted skipped (of
+    each 3 the 2nd is replaced by the 3rd, the 3rd by the next solve's: 2
+    of every 3, none before the first), and the answers are the same on a
+    second run, bitwise."""
+    rows = []
+    for k in range(2):
+        out = tmp_path / str(k)
+        assert cli.main(["carried", "--scene", "arm:2000", "--clips", "elbow_bend", "--every",
+                         "8", "--solve-poses", "3", "--out", str(out), "--no-progress"]) == 0
+        rows.append(json.loads((out / "carried.json").read_text())[0])
+    assert "| arm:2000 | elbow_bend (each solve 3 poses) |" in capsys.readouterr().out
+    r = rows[0]
+    assert r["solve_poses"] == 3 and r["solves_failed"] == 0
+    assert (r["lag_p50"], r["lag_max"]) == (4.0, 5), r
+    assert r["solves_skipped"] == 120 + 119, r     # poses 2, 5, .., 359 and 3, 6, .., 357
+    for key in ("answer_pairs", "answer_folds90", "answer_roughness", "dev_median_mm",
+                "dev_max_mm", "faded"):
+        assert rows[1][key] == r[key], key
+    assert r["dqs_pairs"] > 500 and r["answer_pairs"] <= 0.02 * r["dqs_pairs"], r
+    assert r["dev_median_mm"] > 0.0, r          # a correction 3-5 poses old is not the solved one
+
+
 def test_a_gltf_characters_own_clips_are_scenes(tmp_path, monkeypatch, capsys):
     """``--clips gltf:NAME`` (or the bare NAME) runs a glTF file's animation; with no
     clips named, a glTF scene runs its own animations, not a humanoid's walk."""

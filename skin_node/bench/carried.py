@@ -18,9 +18,15 @@ a live stream would reach it, with plain DQS timed right after each answer
 
 The figures depend on the machine's speed (a slower solve is older when it
 lands): the report runs this beside the other figures of the same run.
+With ``solve_poses`` (``--solve-poses L``) they do not: the clip is played
+as fast as it goes and every solve takes exactly ``L`` poses (the solver
+takes the pose just answered and its correction lands before the answer
+``L`` poses later; the poses given while it works are skipped), so two
+builds or settings compare on the same schedule, bitwise repeatable.
 """
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -67,10 +73,33 @@ def compare_skins(scene: str, poses: list, skins: list, progress: bool = False) 
     return out
 
 
+class _Paced(Pipeline):
+    """A solver that, once ``paced``, says when it took a pose (``taken``)
+    and returns its solve only when released (``release``)."""
+    paced = False
+
+    def __init__(self, *args, **kw) -> None:
+        super().__init__(*args, **kw)
+        self.taken, self.release = threading.Semaphore(0), threading.Semaphore(0)
+
+    def deform(self, q):
+        paced = self.paced
+        if paced:
+            self.taken.release()
+        try:
+            return super().deform(q)
+        finally:                # a failed solve lands when released too
+            if paced:
+                self.release.acquire()
+
+
 def run_carried(scene: str = "humanoid:24000", clips=("walk", "squat"), every: int = 4,
-                warm_frames: int = 8, progress: bool = True) -> list:
+                warm_frames: int = 8, progress: bool = True,
+                solve_poses: int | None = None) -> list:
     """One row per clip (a built-in clip, or a BVH file retargeted to the
     character); see the module docstring."""
+    if solve_poses is not None and int(solve_poses) < 1:
+        raise ValueError(f"solve_poses must be at least 1, got {solve_poses}")
     sc = parse_scene(scene)
     ch, _ = load_scene(sc)
     rows = []
@@ -84,22 +113,40 @@ def run_carried(scene: str = "humanoid:24000", clips=("walk", "squat"), every: i
                 raise ValueError(f"'{clip}' is not a clip of {scene}")
             frames, rate = np.asarray(mo.frames), float(mo.fps)
         dqs = Pipeline.preset(ch, "dqs")
-        with AsyncPipeline(ch) as ap:
+        solver = _Paced(ch) if solve_poses else None
+        with AsyncPipeline(ch, solver_pipeline=solver) as ap:
             t_warm = ap.warm_up()
             dqs.deform(frames[0])
             answer_ms, dqs_ms, lags, kept, faded = [], [], [], [], 0
-            bar = Progress(len(frames), f"{scene} {clip} at {rate:.0f} Hz", progress)
+            how = f"each solve {solve_poses} poses" if solve_poses else f"at {rate:.0f} Hz"
+            bar = Progress(len(frames), f"{scene} {clip} {how}", progress)
+            due = 0
+            if solver is not None:
+                solver.paced = True
             t0 = time.perf_counter()
             for k, q in enumerate(frames):
-                # sleep, not spin: a spinning thread would hold the GIL the solver needs
-                wait = t0 + k / rate - time.perf_counter()
-                if wait > 0:
-                    time.sleep(wait)
+                take = True
+                if solver is not None:
+                    take = k == due
+                    if take and k:      # the solve under way lands; the solver takes q
+                        landed = ap.solved + ap.failed + 1
+                        solver.release.release()
+                        while ap.solved + ap.failed < landed:
+                            time.sleep(1e-4)
+                    if take:
+                        due = k + int(solve_poses)
+                else:
+                    # sleep, not spin: a spinning thread would hold the GIL the solver needs
+                    wait = t0 + k / rate - time.perf_counter()
+                    if wait > 0:
+                        time.sleep(wait)
                 a = time.perf_counter()
-                V = ap.deform(q)
+                V = ap.deform(q, hand_over=take)  # the poses between are held: skipped
                 b = time.perf_counter()
                 dqs.deform(q)
                 e = time.perf_counter()
+                if solver is not None and take:
+                    solver.taken.acquire()      # before the next pose can replace it
                 answer_ms.append((b - a) * 1e3)
                 dqs_ms.append((e - b) * 1e3)
                 lags.append(ap.lag)
@@ -109,10 +156,15 @@ def run_carried(scene: str = "humanoid:24000", clips=("walk", "squat"), every: i
                     kept.append((q, V))
                 bar.update()
             bar.close()
+            if solver is not None:
+                solver.paced = False
+                solver.release.release()        # the last solve under way
+                ap.wait()
             skipped, failed = ap.skipped, ap.failed
         d50 = float(np.median(dqs_ms))
         L = np.asarray(lags[warm_frames:])
         row = {"scene": scene, "motion": clip, "rate_hz": rate, "frames": len(frames),
+               "solve_poses": int(solve_poses) if solve_poses else None,
                "dqs_ms_p50": d50, "answer_ms_p50": float(np.median(answer_ms)),
                "answer_ms_p90": float(np.percentile(answer_ms, 90)),
                "answer_x_dqs_p50": float(np.median(answer_ms)) / d50,
@@ -134,7 +186,8 @@ def carried_table(rows: list) -> str:
            "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         out.append(
-            f"| {r['scene']} | {r['motion']} at {r['rate_hz']:.0f} Hz | "
+            f"| {r['scene']} | {r['motion']} "
+            f"{_schedule(r)} | "
             f"{r['answer_x_dqs_p50']:.2f} / {r['answer_x_dqs_p90']:.2f} ({r['dqs_ms_p50']:.2f}) | "
             f"{r['lag_p50']:.0f} / {r['lag_p90']:.0f} / {r['lag_max']}; {r.get('faded', '-')} | "
             f"{r['answer_pairs']} / {r['solved_pairs']} / {r['dqs_pairs']} | "
@@ -142,3 +195,8 @@ def carried_table(rows: list) -> str:
             f"{r['answer_roughness'] / max(r['solved_roughness'], 1e-12):.3f} x | "
             f"{r['dev_median_mm']:.1f} / {r['dev_max_mm']:.1f} |")
     return "\n".join(out)
+
+
+def _schedule(row: dict) -> str:
+    n = row.get("solve_poses")
+    return f"(each solve {n} poses)" if n else f"at {row['rate_hz']:.0f} Hz"

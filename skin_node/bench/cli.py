@@ -600,6 +600,9 @@ def _parser() -> argparse.ArgumentParser:
     k.add_argument("--clips", default="walk,squat",
                    help="built-in clips, or BVH files retargeted to the character")
     k.add_argument("--every", type=int, default=4, help="measure every n-th answer")
+    k.add_argument("--solve-poses", type=int, default=None, metavar="L",
+                   help="not in real time: every solve takes exactly L poses (repeatable, "
+                        "independent of the machine's speed)")
     common(k)
 
     c = sub.add_parser("pictures", help="z-buffer close-ups of methods side by side")
@@ -666,7 +669,8 @@ def main(argv: list | None = None) -> int:
             for line in res["lines"]:
                 print("  " + line)
         elif a.cmd == "carried":
-            rows = run_carried(a.scene, _list(a.clips), a.every, progress=prog)
+            rows = run_carried(a.scene, _list(a.clips), a.every, progress=prog,
+                               solve_poses=a.solve_poses)
             a.out.mkdir(parents=True, exist_ok=True)
             write_json(rows, a.out / "carried.json")
             print(carried_table(rows))

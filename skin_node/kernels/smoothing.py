@@ -274,3 +274,22 @@ def cap_relief(X, base, verts, ptr, nbr, limit, passes):
         if now == 0:
             break
     return changed
+
+
+@nb.njit(cache=True, nogil=True, parallel=True, fastmath=FAST)
+def ring_means(X, ptr, adj, passes, buf):
+    """``passes`` times, each row of ``X`` (n, 3) replaced by the mean of
+    itself and its one-ring's (the CSR ``ptr``/``adj``), in place; ``buf``
+    (n, 3) scratch. A field's smooth part stays, what changes from vertex to
+    vertex is averaged away."""
+    for _ in range(passes):
+        for i in nb.prange(X.shape[0]):
+            sx, sy, sz = X[i, 0], X[i, 1], X[i, 2]
+            for b in range(ptr[i], ptr[i + 1]):
+                j = adj[b]
+                sx += X[j, 0]
+                sy += X[j, 1]
+                sz += X[j, 2]
+            k = 1.0 / (ptr[i + 1] - ptr[i] + 1)
+            buf[i, 0], buf[i, 1], buf[i, 2] = sx * k, sy * k, sz * k
+        X[:] = buf
