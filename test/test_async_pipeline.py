@@ -70,12 +70,12 @@ def test_a_pose_held_back_is_solved_only_once_handed_over(humanoid, squat):
 def test_a_stream_one_pose_behind_keeps_the_solved_skins_quality(humanoid, squat):
     """Every 2nd frame of the squat (60 Hz), each answered before the solver
     has the pose, with the corrections of the two poses before it: exact
-    intersecting pairs at most 2% of DQS's (measured 4 of 5,073), sharp
-    folds at most the solved skin's + 2 (measured 15, solved 19; 17 when the
+    intersecting pairs at most 2% of DQS's (measured 0 of 5,073), sharp
+    folds at most the solved skin's + 2 (measured 1, solved 0; 6 when the
     change between two corrections was extrapolated vertex by vertex, not
-    its trend), roughness within 0.5% of the solved skin's (0.002%), and a
+    its trend), roughness within 0.5% of the solved skin's (0.001%), and a
     frame's farthest vertex from the solved skin 4 mm or less at the median
-    frame (0.9 mm, 1.4 vertex by vertex; the largest 5.0 mm)."""
+    frame (0.9 mm; the largest 5.0 mm)."""
     sm = SceneMetrics(humanoid)
     ref, dqs = Pipeline(humanoid), Pipeline.preset(humanoid, "dqs")
     n = len(humanoid.V)

@@ -1104,3 +1104,46 @@ def test_ring_means_is_the_mean_over_each_closed_ring_repeated():
     same = X.copy()
     ring_means(same, ptr, adj, 0, np.empty((n, 3)))
     assert np.array_equal(same, X)
+
+
+def test_most_bent_is_the_largest_excess_bend_over_each_corners_edges():
+    """``most_bent`` against numpy on a noisy icosphere: each corner of a
+    triangle pair gets the most its dihedral angle exceeds both the angle
+    before and the rest angle (pairs whose excess is under the floor's
+    least are skipped), only pairs listed for the chosen vertices count, and
+    ``seen`` comes back all False."""
+    from skin_node.kernels.shape import dihedral_angles, most_bent
+    from skin_node.metrics import interior_edges
+    m = trimesh.creation.icosphere(subdivisions=3)
+    F = np.asarray(m.faces, dtype=np.int64)
+    V0 = np.asarray(m.vertices, dtype=np.float64)
+    n = len(V0)
+    rng = np.random.default_rng(5)
+    before = V0 + 0.01 * rng.normal(size=V0.shape)
+    X = V0 + 0.05 * rng.normal(size=V0.shape)
+    fa, fb, _ = interior_edges(F)
+    fa, fb = fa.astype(np.int64), fb.astype(np.int64)
+    rest = dihedral_angles(V0, F, fa, fb)
+    least = np.radians(10.0)
+    floor = np.cos(np.minimum(np.pi, rest + least))
+    corners = np.concatenate([F[fa], F[fb]], axis=1).ravel()
+    order = np.argsort(corners, kind="stable")
+    eptr = np.r_[0, np.cumsum(np.bincount(corners, minlength=n))].astype(np.int64)
+    edges = (order // 6).astype(np.int64)
+    verts = np.flatnonzero(V0[:, 2] > 0.3).astype(np.int64)
+    seen, out = np.zeros(len(fa), dtype=np.bool_), np.zeros(n)
+    count = most_bent(X, before, rest, floor, F, fa, fb, verts, eptr, edges, seen, out)
+    # numpy: the pairs touching a chosen vertex, their excess, max onto corners
+    now, was = dihedral_angles(X, F, fa, fb), dihedral_angles(before, F, fa, fb)
+    chosen = np.zeros(n, dtype=bool)
+    chosen[verts] = True
+    pair_corners = np.concatenate([F[fa], F[fb]], axis=1)
+    listed = chosen[pair_corners].any(axis=1)
+    excess = now - np.maximum(was, rest)
+    counts = listed & (now > rest + least) & (excess > 0.0)
+    want = np.zeros(n)
+    for k in np.flatnonzero(counts):
+        want[pair_corners[k]] = np.maximum(want[pair_corners[k]], excess[k])
+    assert count == counts.sum() > 20
+    assert np.allclose(out, want, atol=1e-9)
+    assert not seen.any()

@@ -592,3 +592,53 @@ def bent_by_patch(X, before, F, fa, fb, label, limit, count):
             continue
         if _dihedral(X, F, f, g) - _dihedral(before, F, f, g) > limit:
             count[p] += 1
+
+
+@nb.njit(cache=True, nogil=True)
+def most_bent(X, before, rest_angle, floor, F, fa, fb, verts, eptr, edges, seen, out):
+    """On every corner of the triangle pairs ``fa[k]``, ``fb[k]`` (sharing an
+    edge) listed for ``verts`` (``edges[eptr[i]:eptr[i+1]]`` those of vertex
+    ``i``, each pair once or more), ``out[i]`` raised to the most their
+    dihedral angle (radians) in ``X`` exceeds both its angle in ``before``
+    and ``rest_angle[k]``, among the pairs whose angle's cosine in ``X``
+    is below ``floor[k]`` (the cosine of the rest angle and the least
+    excess that counts: the rest are skipped without an arc cosine).
+    ``out`` must hold 0 (or less) there on entry and ``seen`` (one per pair)
+    False, as it is left. Returns how many pairs count."""
+    m = 0
+    for a in range(verts.shape[0]):
+        i = verts[a]
+        for b in range(eptr[i], eptr[i + 1]):
+            k = edges[b]
+            if seen[k]:
+                continue
+            seen[k] = True
+            f, g = fa[k], fb[k]
+            ax, ay, az = _normal(X, F[f, 0], F[f, 1], F[f, 2])
+            bx, by, bz = _normal(X, F[g, 0], F[g, 1], F[g, 2])
+            la = math.sqrt(ax * ax + ay * ay + az * az)
+            lb = math.sqrt(bx * bx + by * by + bz * bz)
+            c = (ax * bx + ay * by + az * bz) / (la * lb) if la > 1e-30 and lb > 1e-30 else 0.0
+            if c >= floor[k]:
+                continue
+            d = math.acos(max(-1.0, c)) - max(_dihedral(before, F, f, g), rest_angle[k])
+            if d <= 0.0:
+                continue
+            m += 1
+            for r in range(3):
+                out[F[f, r]] = max(out[F[f, r]], d)
+                out[F[g, r]] = max(out[F[g, r]], d)
+    for a in range(verts.shape[0]):
+        i = verts[a]
+        for b in range(eptr[i], eptr[i + 1]):
+            seen[edges[b]] = False
+    return m
+
+
+@nb.njit(cache=True, nogil=True)
+def dihedral_angles(X, F, fa, fb):
+    """The angle (radians) between the normals of ``fa[k]`` and ``fb[k]``."""
+    out = np.empty(fa.shape[0])
+    for k in range(fa.shape[0]):
+        out[k] = _dihedral(X, F, fa[k], fb[k])
+    return out

@@ -5,9 +5,19 @@ import numpy as np
 
 from ..kernels.smoothing import (gather_weights, laplacian_smooth, restore_detail,
                                  ring_layout, vertex_faces)
-from ..kernels.shape import clearance_caps, hold_clear
+from ..kernels.shape import clearance_caps, dihedral_angles, hold_clear, most_bent
+from ..metrics import interior_edges
 from .base import Frame, Stage
 from .shape import CLEAR_SHARE
+
+#: Where the rest detail bends an edge more than DETAIL_BEND degrees beyond
+#: both the smoothed skin and the rest skin, it is faded out at the edge's
+#: corners, fully DETAIL_RAMP degrees further. Crushed into a deep crease,
+#: each vertex's rest offset turned into its own frame folds the skin
+#: between them: the 90k humanoid's deepest squat kept 85 sharp folds (DQS
+#: 27) and the 43k's 14 (DQS 21); faded, 21 and 1 (see docs/design.md).
+DETAIL_BEND = 30.0
+DETAIL_RAMP = 30.0
 
 
 class Mush(Stage):
@@ -30,7 +40,9 @@ class Mush(Stage):
     that to stay local (:attr:`~skin_node.Character.resolved`: CesiumMan's
     40 mm edges around 40 mm limbs, where smoothing a few rings reaches across
     the joint, cuts the bend's corner and loses a fifth of the shoulder
-    region's volume) is left alone.
+    region's volume) is left alone. Where the detail, crushed into a deep
+    crease of fine skin, bends an edge beyond both the smoothed skin and the
+    rest skin, it is faded out (:data:`DETAIL_BEND`).
     """
 
     name = "mush"
@@ -56,6 +68,19 @@ class Mush(Stage):
         # the mush fades itself out on coarse skin, so its hold is not scaled
         # by resolution as inflation's is (clearance_caps' resolved: ones)
         self._unscaled, self._near = np.ones(n), np.empty(n)
+        # the interior edges (as their two faces) a vertex's move bends:
+        # those of the faces round it (the pair's corners list each of them
+        # once or twice); and their rest angles
+        fa, fb, _ = interior_edges(self.F)
+        self._fa, self._fb = fa.astype(np.int64), fb.astype(np.int64)
+        self._rest_angle = dihedral_angles(self.V0, self.F, self._fa, self._fb)
+        self._floor = np.cos(np.minimum(np.pi, self._rest_angle + np.radians(DETAIL_BEND)))
+        corners = np.concatenate([self.F[self._fa], self.F[self._fb]], axis=1).ravel()
+        order = np.argsort(corners, kind="stable")
+        self._eptr = np.r_[0, np.cumsum(np.bincount(corners, minlength=n))].astype(np.int64)
+        self._edges = (order // 6).astype(np.int64)
+        self._seen = np.zeros(len(fa), dtype=np.bool_)
+        self._Y, self._grew = np.empty((n, 3)), np.zeros(n)
 
     def __call__(self, fr: Frame) -> None:
         passes = self.passes("mush_passes")
@@ -76,8 +101,12 @@ class Mush(Stage):
         laplacian_smooth(SV, SV, False, ring, loc, lptr, lnbr, lw, 0.5, kw, passes, L, buf)
         self._fade[zone] = self.resolved[zone]
         start = X.copy() if fr.clearance is not None else None
+        Y = self._Y                         # the smoothed skin, without the detail
+        Y[ring] = X[ring]
+        Y[zone] += self._fade[zone, None] * (SX[zone] - Y[zone])
         restore_detail(X, self.V0, SX, SV, zone, self.F, self._vf_ptr, self._vf, self._first,
                        self._fade)
+        fr.counts["mush_detail_faded"] = self._fade_folds(X, Y, zone)
         self._fade[zone] = 0.0
         if start is not None:
             # the rest detail comes back round where the contact flattened
@@ -89,3 +118,16 @@ class Mush(Stage):
                 X, zone, start, clearance_caps(fr.clearance, self._unscaled, CLEAR_SHARE,
                                                self._near))
         fr.counts["mush_vertices"] = len(zone)
+
+    def _fade_folds(self, X: np.ndarray, Y: np.ndarray, zone: np.ndarray) -> int:
+        """Fades the rest detail out of ``X`` (back towards ``Y``) at the
+        corners of edges it bends more than DETAIL_BEND degrees beyond both
+        ``Y``'s and the rest skin's; returns how many vertices it faded."""
+        grew = self._grew
+        most_bent(X, Y, self._rest_angle, self._floor, self.F, self._fa, self._fb, zone,
+                  self._eptr, self._edges, self._seen, grew)
+        w = np.clip((np.degrees(grew[zone]) - DETAIL_BEND) / DETAIL_RAMP, 0.0, 1.0)
+        grew.fill(0.0)          # set on corners up to two rings out
+        faded = w > 0.0
+        X[zone[faded]] += w[faded, None] * (Y[zone[faded]] - X[zone[faded]])
+        return int(faded.sum())
