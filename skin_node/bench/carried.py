@@ -18,11 +18,12 @@ a live stream would reach it, with plain DQS timed right after each answer
 
 The figures depend on the machine's speed (a slower solve is older when it
 lands): the report runs this beside the other figures of the same run.
-With ``solve_poses`` (``--solve-poses L``) they do not: the clip is played
-as fast as it goes and every solve takes exactly ``L`` poses (the solver
-takes the pose just answered and its correction lands before the answer
-``L`` poses later; the poses given while it works are skipped), so two
-builds or settings compare on the same schedule, bitwise repeatable.
+With ``solve_poses`` (``--solve-poses L``) the skin's figures do not (the
+times still do): the clip is played as fast as it goes and every solve
+takes exactly ``L`` poses (the solver takes the pose just answered and its
+correction lands before the answer ``L`` poses later; the poses given while
+it works are skipped), so two builds or settings compare on the same
+schedule, bitwise repeatable.
 """
 from __future__ import annotations
 

@@ -13,6 +13,7 @@ Subcommands (``run`` is the default when the first argument is an option)::
     skin_bench ablation --scenes humanoid:24000 --clips walk,squat   # each part's worth
     skin_bench ros-latency --seconds 10
     skin_bench carried --scene humanoid:24000 --clips walk,squat   # correction solved behind
+    skin_bench carried --clips squat --solve-poses 3   # the same, on a fixed schedule
     skin_bench pictures --out closeups.png      # z-buffer close-ups, LBS / DQS / paper / ours
     skin_bench report            # everything, into bench_results/, prints a markdown table
 
