@@ -101,8 +101,10 @@ class Mush(Stage):
         laplacian_smooth(SV, SV, False, ring, loc, lptr, lnbr, lw, 0.5, kw, passes, L, buf)
         self._fade[zone] = self.resolved[zone]
         start = X.copy() if fr.clearance is not None else None
-        Y = self._Y                         # the smoothed skin, without the detail
-        Y[ring] = X[ring]
+        # the smoothed skin, without the detail: X but on the zone (the edges
+        # checked reach corners two rings out of it, past ``ring``)
+        Y = self._Y
+        np.copyto(Y, X)
         Y[zone] += self._fade[zone, None] * (SX[zone] - Y[zone])
         restore_detail(X, self.V0, SX, SV, zone, self.F, self._vf_ptr, self._vf, self._first,
                        self._fade)
