@@ -9,9 +9,9 @@ import pytest
 
 from skin_node.bench import cli
 from skin_node import Pipeline
-from skin_node.bench.measure import (Method, SceneMetrics, inverted_tets, jitter, load_scene,
-                                     make_motion, parse_method, parse_scene, run_method,
-                                     segment_distance)
+from skin_node.bench.measure import (Method, Scene, SceneMetrics, inverted_tets, jitter,
+                                     load_scene, make_motion, parse_method, parse_scene,
+                                     run_method, segment_distance)
 from skin_node.bench.stability import CASES, case_frames, stability_map
 from skin_node.bench.charts import pareto_front
 from skin_node.metrics import roughness
@@ -334,6 +334,30 @@ def test_a_gltf_characters_own_clips_are_scenes(tmp_path, monkeypatch, capsys):
     capsys.readouterr()
     assert cli.main(common + ["--clips", "gltf:run"]) == 2
     assert "no animation named 'run'" in capsys.readouterr().err
+
+
+def test_a_gltf_scene_runs_on_either_weighting(tmp_path, monkeypatch):
+    """``FILE.glb@file`` benches a glTF character on its own skin weights,
+    ``FILE.glb`` (or ``@automatic``) on bone heat: two scenes, two rigs, named
+    apart in the results."""
+    from test_gltf_clips import write_animated_glb
+    from skin_node.rigging.heat import dense_weights
+    monkeypatch.setenv("SKIN_NODE_CACHE", str(tmp_path / "cache"))
+    glb = str(write_animated_glb(tmp_path / "leg.glb"))
+    auto, own = parse_scene(glb), parse_scene(glb + "@file")
+    assert parse_scene(glb + "@automatic") == auto and auto.weights == "automatic"
+    assert own.weights == "file" and own.label == auto.label + "@file"
+    assert parse_scene("arm:6000:24000@file") == Scene("arm", 6000, 24000, "file")
+    with pytest.raises(ValueError, match="weights are"):
+        parse_scene(glb + "@painted")
+    a, f = load_scene(auto)[0], load_scene(own)[0]
+    assert a.options.weights != f.options.weights
+    J = a.skeleton.n_joints
+    wa = dense_weights(a.rig.Widx, a.rig.Wval, J)
+    wf = dense_weights(f.rig.Widx, f.rig.Wval, J)
+    assert wa.shape == wf.shape and np.abs(wa - wf).max() > 0.1
+    with pytest.raises(ValueError, match="needs a skinned glTF"):
+        load_scene(parse_scene("arm:2000@file"))
 
 
 def test_a_bvh_file_is_a_clip_retargeted_to_the_scene():

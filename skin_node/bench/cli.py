@@ -7,6 +7,7 @@ Subcommands (``run`` is the default when the first argument is an option)::
     skin_bench run --pipelines '{"name": "dqs+pbd", "stages": ["dqs", "pbd"]}' ...
     skin_bench run --scenes CesiumMan.glb --clips gltf:animation0   # a file's own clip
     skin_bench run --scenes CesiumMan.glb --clips cmu_02_01_walk.bvh --stride 24   # mocap
+    skin_bench run --scenes CesiumMan.glb,CesiumMan.glb@file ...   # both weightings
     skin_bench stability --pipelines lbs,default --long-frames 100000
     skin_bench memory --scene humanoid:24000 --frames 3000
     skin_bench export-memory --frames 1000   # the streaming exporter's peak RSS
@@ -542,7 +543,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="preset names (comma-separated) and/or JSON dicts "
                         '{"name", "preset", "stages", "params"}')
     r.add_argument("--scenes", default="arm:2000",
-                   help="comma-separated character:surface_vertices[:tets] (or a character file)")
+                   help="comma-separated character:surface_vertices[:tets] (or a character "
+                        "file), each with @file for a glTF's own weights (automatic unless said)")
     r.add_argument("--clips", default="", help="clips and pose sweeps (elbow_bend, wrist_twist, "
                    "walk, squat, elbow_sweep, twist_sweep) or a glTF character's animations "
                    "(NAME or gltf:NAME), or BVH files retargeted to the character; default per "

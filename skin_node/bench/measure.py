@@ -135,23 +135,32 @@ class Progress:
 # ----------------------------------------------------------------------- scenes
 @dataclass(frozen=True)
 class Scene:
-    """A character at a density: ``arm:6000`` or ``arm:6000:24000`` (tets)."""
+    """A character at a density: ``arm:6000`` or ``arm:6000:24000`` (tets);
+    a glTF character on its own skin weights: ``CesiumMan.glb@file``."""
 
     character: str
     surface_vertices: int
     tets: int | None = None
+    weights: str = "automatic"
 
     @property
     def label(self) -> str:
-        return f"{self.character}:{self.surface_vertices}" + (f":{self.tets}" if self.tets else "")
+        return (f"{self.character}:{self.surface_vertices}" + (f":{self.tets}" if self.tets else "")
+                + (f"@{self.weights}" if self.weights != "automatic" else ""))
 
     def with_tets(self, tets: int | None) -> "Scene":
         return replace(self, tets=tets)
 
 
 def parse_scene(spec: str) -> Scene:
-    """``"arm:6000"`` / ``"arm:6000:24000"`` / ``"humanoid"`` -> :class:`Scene`."""
-    parts = str(spec).split(":")
+    """``"arm:6000"`` / ``"arm:6000:24000"`` / ``"humanoid"`` -> :class:`Scene`;
+    a suffix ``@file`` or ``@automatic`` picks the weights (``automatic``
+    unless said: a glTF file's own are ``@file``)."""
+    spec, _, weights = str(spec).partition("@")
+    weights = weights or "automatic"
+    if weights not in ("automatic", "file"):
+        raise ValueError(f"scene '{spec}@{weights}': weights are 'automatic' or 'file'")
+    parts = spec.split(":")
     if not parts[0] or len(parts) > 3:
         raise ValueError(f"scene '{spec}': expected character[:surface_vertices[:tets]]")
     try:
@@ -159,7 +168,7 @@ def parse_scene(spec: str) -> Scene:
         t = int(parts[2]) if len(parts) > 2 and parts[2] else None
     except ValueError:
         raise ValueError(f"scene '{spec}': vertex and tet counts must be integers") from None
-    return Scene(parts[0], n, t)
+    return Scene(parts[0], n, t, weights)
 
 
 _SCENES: dict = {}
@@ -171,7 +180,8 @@ def load_scene(scene: Scene, cache: bool = True):
     if scene not in _SCENES:
         t0 = time.perf_counter()
         ch = load_character(scene.character, surface_vertices=scene.surface_vertices or None,
-                            tet_count=scene.tets, cache=cache, progress=False)
+                            tet_count=scene.tets, cache=cache, progress=False,
+                            weights=scene.weights)
         if ch.rig is None:
             raise ValueError(f"scene '{scene.label}': {ch.notes[-1]}; there is no simulated "
                              "body to measure")
