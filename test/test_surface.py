@@ -209,7 +209,7 @@ def test_region_volume_kernel_follows_its_numpy_reference(small_arm):
     got = keep_region_volume(Y, F, t, c, corners, v, mob, free, st.seg, st.r0, st.hold,
                              fr.seg_A, fr.seg_B, limit, st.vol0[j], cap, Y.copy(),
                              np.full(len(Y), np.inf), st._edge, np.empty((len(v), 3)),
-                             np.empty(len(v)), np.empty(len(v)), 4)
+                             np.empty(len(v)), np.empty(len(v)))
     assert steps == 8, steps
     assert np.abs(Y - X).max() <= 1e-12, np.abs(Y - X).max()
     assert abs(got - vol) <= 1e-12 * abs(vol)

@@ -351,13 +351,13 @@ def smoothstep(x):
 
 @nb.njit(cache=True, nogil=True)
 def keep_region_volume(X, F, tris, c, corners, verts, mob, free, seg, r0, hold, A, B,
-                       limit, vol0, cap, start, near, fade, g, room, share, past):
+                       limit, vol0, cap, start, near, fade, g, room, share):
     """One joint region's volume back to ``vol0`` (the cone from ``c`` over
     its triangles ``tris``, :func:`cone_volume_gradient`), by even layers
     along the volume's gradient: up to four within the bulge limit's
     envelope (:func:`envelope_room` at ``limit``, each vertex's share fading
     to none as its room runs out), then, if the region is still short (skin
-    in contact all round), up to ``past`` past it. ``mob``
+    in contact all round, a coarse mesh), up to four past it. ``mob``
     (len(verts),) is each vertex's share of a layer; where the region is
     short it is also scaled by ``free`` (n,): skin in contact may sink into
     its own flesh, not swell into the other's. Layers move skin both ways
@@ -368,7 +368,7 @@ def keep_region_volume(X, F, tris, c, corners, verts, mob, free, seg, r0, hold, 
     (len(verts), 3), ``room`` and ``share`` (len(verts),) are scratch.
     Returns the region's volume at the end."""
     vol = cone_volume_gradient(X, F, tris, c, corners, g)
-    for it in range(4 + past):
+    for it in range(8):
         deficit = vol0 - vol
         if abs(deficit) <= 2e-3 * abs(vol0):
             break

@@ -13,7 +13,7 @@ from ..kernels.shape import (bent_edges, cone_volume_gradient, enclosed_volume, 
 from ..kernels.smoothing import EVEN, gather_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from .base import Frame, KeyedCache, Stage
-from .untangle import CoarseCrossings, coarse_edges, coarse_parts
+from .untangle import CoarseCrossings, coarse_edges
 
 
 def _union(verts: list, on: np.ndarray, n: int) -> np.ndarray:
@@ -159,16 +159,6 @@ FINAL_BEND = 60.0
 #: laid again the arm's elbow past 150 degrees crossed more (155-165
 #: degrees: 14, 80, 246 -> 22, 120, 266 intersecting pairs).
 RELAY_WHOLE = True
-#: Layers a joint region's volume may take past the bulge limit's envelope
-#: once the layers inside it are spent (skin in contact all round):
-#: PAST_LAYERS on fine skin; COARSE_PAST_LAYERS at the joint of a coarse
-#: part (:func:`~skin_node.stages.untangle.coarse_parts`), where a layer is a few lone vertices and past the envelope they stood out as
-#: flaps at the elbow's crease: CesiumMan's largest outward change from a
-#: bone 43 -> 23 mm on the walk and 97 -> 42 mm on the punch on the file's
-#: weights (DQS 14 and 79; every 4th frame, the regions of the walk still
-#: within 3% of rest on every frame, the whole mesh's volume unchanged).
-PAST_LAYERS = 4
-COARSE_PAST_LAYERS = 0
 
 
 class Inflate(Stage):
@@ -229,9 +219,6 @@ class Inflate(Stage):
             self.vol0.append(float(cone_volume_gradient(V, F, t, c, self.corners[-1],
                                                         np.empty((len(v), 3)))))
         self.radius = r.radius
-        coarse = coarse_parts(character)
-        self.past = [COARSE_PAST_LAYERS if coarse[j] else PAST_LAYERS
-                     for j in range(skel.n_joints)]
         # the whole mesh: its volume, and per joint the skin whose weights it
         # splits (how evenly: 4 s (1 - s), full from a tenth on the other side)
         self.jverts, self.jsplit = [], []
@@ -420,7 +407,7 @@ class Inflate(Stage):
                                      v, self.mob[j] * fr.fade[j], free, self.seg, self.r0,
                                      self.hold, fr.seg_A, fr.seg_B, limit, self.vol0[j],
                                      cap * self.radius[j], start, near, self._edge, g, room,
-                                     share, self.past[j])
+                                     share)
             out[j] = vol / self.vol0[j]
         return out
 

@@ -24,17 +24,6 @@ EASE_BEND = 45.0
 EASE_PASSES = 2
 
 
-def coarse_parts(character) -> np.ndarray:
-    """(J,) bool: the parts most of whose skin is coarse
-    (:attr:`~skin_node.Character.resolved` below 1: CesiumMan's, none of the
-    built-in characters'; a few coarse vertices at a fine limb's knee or hand
-    are the contact's to keep apart)."""
-    part = character.rig.part
-    J = character.skeleton.n_joints
-    return np.array([np.median(character.resolved[part == j]) < 1.0
-                     if np.any(part == j) else False for j in range(J)])
-
-
 def coarse_triangles(character):
     """``(F, fpart, coarse)``: the triangles (int64), each one's part (that
     of two of its corners, else its first's) and the coarse ones, those of
@@ -45,7 +34,13 @@ def coarse_triangles(character):
     part = character.rig.part
     p = part[F]
     fpart = np.ascontiguousarray(np.where(p[:, 1] == p[:, 2], p[:, 1], p[:, 0]))
-    return F, fpart, np.flatnonzero(coarse_parts(character)[fpart])
+    # the coarse parts: most of their skin is (the humanoid's and the arm's
+    # have none; a few coarse vertices at a fine limb's knee or hand are the
+    # contact's to keep apart)
+    J = character.skeleton.n_joints
+    coarse = np.array([np.median(character.resolved[part == j]) < 1.0
+                       if np.any(part == j) else False for j in range(J)])
+    return F, fpart, np.flatnonzero(coarse[fpart])
 
 
 def coarse_edges(F: np.ndarray, coarse: np.ndarray):
