@@ -351,13 +351,14 @@ def smoothstep(x):
 
 @nb.njit(cache=True, nogil=True)
 def keep_region_volume(X, F, tris, c, corners, verts, mob, free, seg, r0, hold, A, B,
-                       limit, vol0, cap, start, near, fade, g, room, share):
+                       limit, vol0, cap, start, near, fade, g, room, share, outer):
     """One joint region's volume back to ``vol0`` (the cone from ``c`` over
     its triangles ``tris``, :func:`cone_volume_gradient`), by even layers
     along the volume's gradient: up to four within the bulge limit's
     envelope (:func:`envelope_room` at ``limit``, each vertex's share fading
     to none as its room runs out), then, if the region is still short (skin
-    in contact all round, a coarse mesh), up to four past it. ``mob``
+    in contact all round, a coarse mesh), up to four past it, within the
+    envelope at ``outer`` the same way. ``mob``
     (len(verts),) is each vertex's share of a layer; where the region is
     short it is also scaled by ``free`` (n,): skin in contact may sink into
     its own flesh, not swell into the other's. Layers move skin both ways
@@ -375,17 +376,17 @@ def keep_region_volume(X, F, tris, c, corners, verts, mob, free, seg, r0, hold, 
         out = deficit > 0.0
         if not out and it >= 4:
             break
-        within = out and it < 4
-        if within:
-            envelope_room(X, verts, seg, r0, hold, A, B, limit, room)
+        # within the bulge limit's envelope, then (the last four) the outer one
+        env = limit if it < 4 else outer
+        if out:
+            envelope_room(X, verts, seg, r0, hold, A, B, env, room)
         den = 0.0
         for k in range(verts.shape[0]):
             i = verts[k]
             m = mob[k]
             if out:
                 m *= free[i]
-                if within:
-                    m *= smoothstep(room[k] / max(0.5 * limit * r0[i, 0], 1e-12))
+                m *= smoothstep(room[k] / max(0.5 * env * r0[i, 0], 1e-12))
             if near[i] < np.inf:
                 d = math.sqrt((X[i, 0] - start[i, 0]) ** 2 + (X[i, 1] - start[i, 1]) ** 2
                               + (X[i, 2] - start[i, 2]) ** 2)
@@ -398,7 +399,7 @@ def keep_region_volume(X, F, tris, c, corners, verts, mob, free, seg, r0, hold, 
         for k in range(verts.shape[0]):
             i = verts[k]
             step = min(max(s * share[k], -cap), cap)
-            if within:
+            if out:
                 step = min(step, room[k])
             a = max(math.sqrt(g[k, 0] ** 2 + g[k, 1] ** 2 + g[k, 2] ** 2), 1e-30)
             X[i, 0] += step * g[k, 0] / a

@@ -159,6 +159,14 @@ FINAL_BEND = 60.0
 #: laid again the arm's elbow past 150 degrees crossed more (155-165
 #: degrees: 14, 80, 246 -> 22, 120, 266 intersecting pairs).
 RELAY_WHOLE = True
+#: Where a joint's region or the whole mesh is still short once the layers
+#: within the bulge limit's envelope are spent (skin in contact all round,
+#: a coarse mesh), the layers past it stop at an outer envelope
+#: PAST_ENVELOPE rest distances further out. Unbounded, on coarse skin a
+#: layer of a few lone vertices stood out as a flap: a forearm of
+#: CesiumMan's punch 97 mm out of its bone on the file's weights (DQS's
+#: skin: 32 mm there), a flap at the walk's inner elbow 43 mm out.
+PAST_ENVELOPE = 0.25
 
 
 class Inflate(Stage):
@@ -407,7 +415,7 @@ class Inflate(Stage):
                                      v, self.mob[j] * fr.fade[j], free, self.seg, self.r0,
                                      self.hold, fr.seg_A, fr.seg_B, limit, self.vol0[j],
                                      cap * self.radius[j], start, near, self._edge, g, room,
-                                     share)
+                                     share, limit + PAST_ENVELOPE)
             out[j] = vol / self.vol0[j]
         return out
 
@@ -470,14 +478,16 @@ class Inflate(Stage):
 
     def _layer(self, fr, v, t, corners, m, target, deficit, lim, steps, within, start, near):
         """Up to ``steps`` even layers over ``v`` (mobility ``m``) towards the
-        mesh volume ``target``, within the bulge limit's envelope when
-        ``within`` and the mesh is short, and within ``near`` of ``start``
+        mesh volume ``target``, where the mesh is short within the bulge
+        limit's envelope when ``within``, else within the outer one
+        (:data:`PAST_ENVELOPE`), and within ``near`` of ``start``
         (:func:`~skin_node.kernels.shape.hold_clear`), the share fading over
         the last mean edge of it; returns the deficit left."""
         held = near is not self._far
         X = fr.surface
         g, room, share = np.empty((len(v), 3)), np.empty(len(v)), np.empty(len(v))
         limit = float(self.params["bulge_limit"])
+        edge = limit if within else limit + PAST_ENVELOPE
         for _ in range(steps):
             if abs(deficit) <= 1e-3 * self.mesh_vol0:
                 break
@@ -485,12 +495,13 @@ class Inflate(Stage):
             # within the envelope each vertex takes all of a layer with half
             # the bulge limit's room left or more, fading to none at the
             # envelope (a cap alone would leave a step where capped skin meets
-            # free skin); skin as far from its start as it may be takes no more
-            env = within and deficit > 0.0
+            # free skin); past it, the same within the outer envelope; skin as
+            # far from its start as it may be takes no more
+            env = deficit > 0.0
             if env:
-                envelope_room(X, v, self.seg, self.r0, self.hold, fr.seg_A, fr.seg_B, limit,
+                envelope_room(X, v, self.seg, self.r0, self.hold, fr.seg_A, fr.seg_B, edge,
                               room)
-            if not even_layer(X, v, g, m, deficit, lim, env, room, self.r0, limit, held, near,
+            if not even_layer(X, v, g, m, deficit, lim, env, room, self.r0, edge, held, near,
                               start, self._edge, share):
                 break
             if held:
