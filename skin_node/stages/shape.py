@@ -180,7 +180,9 @@ class Inflate(Stage):
     outer side in, the region's other skin moves out along its normals (in,
     where contact pushed skin out), evenly (a layer, not a lump), fading to
     nothing at the region's border and over ``inflate_rings`` rings around
-    skin in contact, by at most ``inflate_max`` limb radii. On coarse skin
+    skin in contact, by at most ``inflate_max`` limb radii a layer; past the
+    bulge limit's envelope no further than :data:`PAST_ENVELOPE` rest
+    distances beyond it. On coarse skin
     the layers are withheld where they bent an edge sharply or ran skin
     through another part's, and laid again on the skin left
     (:data:`WITHHOLD_BEND`); where they still bend an edge past
