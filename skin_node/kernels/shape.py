@@ -144,33 +144,75 @@ def parting(out, verts, ptr, pa, pb, ta, tb, sep0, pw, A, B):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _allow(X, i, seg, r0, hold, A, B, width, fade, pairs, allowed):
-    """:func:`pull_bulge`'s limits of vertex ``i``."""
-    for s in range(seg.shape[1]):
-        allowed[i, s] = NO_LIMIT
-    if fade[i] <= 0.0:
-        return
+def _pull(X, i, seg, r0, hold, A, B, width, fade, pairs, allowed):
+    """:func:`pull_bulge` of vertex ``i``: its limits into ``allowed[i]``,
+    then :func:`_limit`'s projection onto them, each segment's distance
+    read once where the vertex has not moved yet (as :func:`_limit` would
+    read it again: the same skin to the last bit). 1 if it moved, else 0."""
+    k = seg.shape[1]
+    f = fade[i]
+    if f <= 0.0:
+        for s in range(k):
+            allowed[i, s] = NO_LIMIT
+        return 0
     px, py, pz = X[i, 0], X[i, 1], X[i, 2]
+    # each segment's distance, kept in ``allowed[i]`` until its limit is known
     out = False
-    for s in range(seg.shape[1]):
+    for s in range(k):
         if hold[i, s] > 0.0:
             cx, cy, cz = _closest_on_segment(px, py, pz, A, B, seg[i, s])
-            if math.sqrt((px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2) > r0[i, s]:
-                out = True
-                break
+            r = math.sqrt((px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2)
+            allowed[i, s] = r
+            out = out or r > r0[i, s]
+        else:
+            allowed[i, s] = NO_LIMIT
     if not out:
         # within its rest distance of every segment: no limit applies, and
         # the parting (which only loosens them) need not be read
-        return
+        for s in range(k):
+            allowed[i, s] = NO_LIMIT
+        return 0
     d = _parting(i, pairs[0], pairs[1], pairs[2], pairs[3], pairs[4], pairs[5], pairs[6], A, B)
-    for s in range(seg.shape[1]):
-        if hold[i, s] <= 0.0:
+    qx, qy, qz = px, py, pz
+    moved = False
+    for s in range(k):
+        r = allowed[i, s]
+        if r >= NO_LIMIT:
             continue
         w = width[i] / hold[i, s]
-        cx, cy, cz = _closest_on_segment(px, py, pz, A, B, seg[i, s])
-        e = math.sqrt((px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2) - r0[i, s] - d
-        if e > 0.0:
-            allowed[i, s] = r0[i, s] + d + w * math.tanh(e / w)
+        e = r - r0[i, s] - d
+        if e <= 0.0:
+            allowed[i, s] = NO_LIMIT
+            continue
+        lim = r0[i, s] + d + w * math.tanh(e / w)
+        allowed[i, s] = lim
+        # the first of ROUNDS projections, as :func:`_limit` makes it (until
+        # the vertex moves, its distance is the one just read: within its
+        # limit, nothing more to read)
+        if moved or r > lim:
+            cx, cy, cz = _closest_on_segment(qx, qy, qz, A, B, seg[i, s])
+            ux, uy, uz = qx - cx, qy - cy, qz - cz
+            r = math.sqrt(ux * ux + uy * uy + uz * uz)
+            if r > lim and r > 1e-12:
+                c = lim / r
+                qx, qy, qz = cx + ux * c, cy + uy * c, cz + uz * c
+                moved = True
+    for _ in range(ROUNDS - 1):
+        for s in range(k):
+            if allowed[i, s] >= NO_LIMIT:
+                continue
+            cx, cy, cz = _closest_on_segment(qx, qy, qz, A, B, seg[i, s])
+            ux, uy, uz = qx - cx, qy - cy, qz - cz
+            r = math.sqrt(ux * ux + uy * uy + uz * uz)
+            if r > allowed[i, s] and r > 1e-12:
+                c = allowed[i, s] / r
+                qx, qy, qz = cx + ux * c, cy + uy * c, cz + uz * c
+    if qx == px and qy == py and qz == pz:
+        return 0
+    X[i, 0] = px + f * (qx - px)
+    X[i, 1] = py + f * (qy - py)
+    X[i, 2] = pz + f * (qz - pz)
+    return 1
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -243,9 +285,7 @@ def pull_bulge(X, verts, seg, r0, hold, A, B, width, fade, pairs, allowed):
     them out. Returns how many vertices moved."""
     n = 0
     for k in nb.prange(verts.shape[0]):
-        i = verts[k]
-        _allow(X, i, seg, r0, hold, A, B, width, fade, pairs, allowed)
-        n += _limit(X, i, seg, A, B, fade, allowed)
+        n += _pull(X, verts[k], seg, r0, hold, A, B, width, fade, pairs, allowed)
     return n
 
 
