@@ -117,13 +117,15 @@ def parting_pairs(V, A, B, seg_joint, reach=PARTING_REACH, most=PARTING_MOST):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _parting(i, ptr, pa, pb, ta, tb, sep0, pw, A, B):
+def _parting(i, ptr, pa, pb, ta, tb, sep0, pw, A, B, enough):
     """How much further apart than at rest vertex ``i``'s nearest bones now
     hold it (:func:`parting_pairs`; posed segments ``A``-``B``): the largest
     growth of the distance between two of their points nearest it at rest,
-    weighted; 0 if none grew."""
+    weighted; 0 if none grew. Once that reaches ``enough``, the growth so far."""
     grow = 0.0
     for q in range(ptr[i], ptr[i + 1]):
+        if grow >= enough:
+            break
         a, b, u, v = pa[q], pb[q], ta[q], tb[q]
         x = (A[a, 0] + u * (B[a, 0] - A[a, 0])) - (A[b, 0] + v * (B[b, 0] - A[b, 0]))
         y = (A[a, 1] + u * (B[a, 1] - A[a, 1])) - (A[b, 1] + v * (B[b, 1] - A[b, 1]))
@@ -139,7 +141,7 @@ def parting(out, verts, ptr, pa, pb, ta, tb, sep0, pw, A, B):
     """``out[k]``: the bones' parting around vertex ``verts[k]`` (what
     :func:`pull_bulge` loosens its limits by), for tests and pictures."""
     for k in range(verts.shape[0]):
-        out[k] = _parting(verts[k], ptr, pa, pb, ta, tb, sep0, pw, A, B)
+        out[k] = _parting(verts[k], ptr, pa, pb, ta, tb, sep0, pw, A, B, np.inf)
     return out
 
 
@@ -157,22 +159,25 @@ def _pull(X, i, seg, r0, hold, A, B, width, fade, pairs, allowed):
         return 0
     px, py, pz = X[i, 0], X[i, 1], X[i, 2]
     # each segment's distance, kept in ``allowed[i]`` until its limit is known
-    out = False
+    over = 0.0
     for s in range(k):
         if hold[i, s] > 0.0:
             cx, cy, cz = _closest_on_segment(px, py, pz, A, B, seg[i, s])
             r = math.sqrt((px - cx) ** 2 + (py - cy) ** 2 + (pz - cz) ** 2)
             allowed[i, s] = r
-            out = out or r > r0[i, s]
+            over = max(over, r - r0[i, s])
         else:
             allowed[i, s] = NO_LIMIT
-    if not out:
+    if over <= 0.0:
         # within its rest distance of every segment: no limit applies, and
         # the parting (which only loosens them) need not be read
         for s in range(k):
             allowed[i, s] = NO_LIMIT
         return 0
-    d = _parting(i, pairs[0], pairs[1], pairs[2], pairs[3], pairs[4], pairs[5], pairs[6], A, B)
+    # (a parting as large as the most the vertex stands out loosens every
+    # limit away: the rest of it need not be read)
+    d = _parting(i, pairs[0], pairs[1], pairs[2], pairs[3], pairs[4], pairs[5], pairs[6], A, B,
+                 over)
     qx, qy, qz = px, py, pz
     moved = False
     for s in range(k):
