@@ -27,7 +27,7 @@ from .builtin.characters import BUILTIN_CHARACTERS
 from .builtin.clips import CLIP_NAMES, Clip, default_clip_name, make_clip
 from .character import load_character
 from .io.bvh import load_bvh
-from .io.character_file import load_character_file
+from .io.character_file import file_clip_name, load_character_file
 from .io.gltf import gltf_animation_names, load_gltf_scene
 from .retarget import load_mapping, retarget_bvh
 from .skeleton import Skeleton
@@ -70,6 +70,15 @@ def file_animations(character: str) -> list[str]:
     if not is_gltf(character):
         return []
     return gltf_animation_names(character)
+
+
+def default_clip(character: str) -> str:
+    """The built-in clip ``character`` plays when none is named: a built-in
+    character's own, a character file's template's
+    (:func:`~skin_node.io.character_file.file_clip_name`), else the walk."""
+    if Path(character).suffix.lower() in (".yaml", ".yml"):
+        return file_clip_name(Path(character)) or default_clip_name(character)
+    return default_clip_name(character)
 
 
 def clip_names(character: str, skeleton: Skeleton | None = None) -> list[str]:
@@ -153,7 +162,7 @@ def load_motion(character: str, clip: str = "", bvh: str = "", mapping: str = ""
     own = file_clip(character, clip, fps) if clip else None
     if own is not None:
         return own
-    name = clip or default_clip_name(character)
+    name = clip or default_clip(character)
     try:
         return make_clip(name, skeleton)
     except (ValueError, KeyError) as e:

@@ -169,6 +169,26 @@ def test_character_file_with_template(tmp_path):
         load_character(str(bad), tet_count=6000, progress=False)
 
 
+def test_an_embedded_character_plays_its_templates_clip_by_default(tmp_path):
+    """With no clip named, a quadruped walks as a quadruped (the player, the
+    exporter and the benchmark alike), not with the humanoid's walk its
+    channels happen to fit (DQS crossed itself at 232 pairs on Spot there)."""
+    from skin_node.bench.cli import scene_clips
+    from skin_node.motion import default_clip, load_motion
+    cow, man, own = tmp_path / "cow.yaml", tmp_path / "man.yaml", tmp_path / "own.yaml"
+    cow.write_text(f"mesh: {SPOT}\ntemplate: quadruped\nup: y\nforward: -z\n")
+    man.write_text("mesh: man.obj\ntemplate: humanoid\n")
+    own.write_text("mesh: arm.obj\njoints: []\n")
+    assert load_template("quadruped").clip == "quadruped_walk"
+    assert [default_clip(str(p)) for p in (cow, man, own)] == ["quadruped_walk", "walk", "walk"]
+    assert scene_clips(str(cow)) == ["quadruped_walk"]
+    _need(SPOT)
+    clip = load_motion(str(cow))
+    assert clip.name == "quadruped_walk"
+    skel = load_character_file(cow, verbose=False)[2]
+    np.testing.assert_array_equal(clip.frames, quadruped_walk(skel))
+
+
 # ------------------------------------------------------- orientation and checks
 def turns() -> list:
     """The 24 rotations that take coordinate axes to coordinate axes."""

@@ -41,7 +41,7 @@ import numba
 import numpy as np
 
 from . import charts
-from ..motion import GLTF_PREFIX, file_animations, file_clip, load_motion
+from ..motion import GLTF_PREFIX, default_clip, file_animations, file_clip, load_motion
 from ..pipeline import STAGE_NAMES
 from .carried import carried_table, run_carried
 from .export_memory import export_memory_line, run_export_memory
@@ -131,7 +131,7 @@ def scene_clips(character: str) -> list:
     """The clips a scene runs when none are named: a glTF character's own
     animations (``gltf:NAME``), else the character's built-in ones."""
     own = [GLTF_PREFIX + a for a in file_animations(character)]
-    return own or DEFAULT_CLIPS.get(character, ["walk"])
+    return own or DEFAULT_CLIPS.get(character, [default_clip(character)])
 
 
 def motion(name: str, character_spec: str, ch, steps: int = 37, stride: int = 1,

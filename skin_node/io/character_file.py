@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..rigging.embed import fit_template
+from ..rigging.embed import fit_template, load_template
 from ..skeleton import Skeleton
 
 
@@ -40,6 +40,20 @@ class CharacterFileError(ValueError):
 
 def _fail(path: Path, msg: str):
     raise CharacterFileError(f"{path}: {msg}")
+
+
+def file_clip_name(path: Path) -> str | None:
+    """The built-in clip the character of file ``path`` plays when none is
+    named: its skeleton template's (``clip:`` of ``config/templates/*.yaml``;
+    a quadruped walks as a quadruped), None for hand-placed joints or a file
+    that cannot say (loading it reports why)."""
+    try:
+        doc = yaml.safe_load(Path(path).read_text())
+        if isinstance(doc, dict) and "template" in doc and "joints" not in doc:
+            return load_template(str(doc["template"])).clip
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, ValueError):
+        pass
+    return None
 
 
 def load_character_file(path: Path, verbose: bool = True):

@@ -95,6 +95,9 @@ class Template:
     above : list of list of str
         Chains of joints that must descend along up in a fit (``checks: above:``
         in the file), e.g. head, pelvis, knee, ankle.
+    clip : str
+        The built-in clip a character embedded with it plays when none is
+        named (``clip:`` in the file; ``walk`` if absent).
     """
 
     name: str
@@ -107,6 +110,7 @@ class Template:
     forward_cue: str = "feet"
     limb_root: np.ndarray | None = None
     above: list = field(default_factory=list)
+    clip: str = "walk"
 
 
 def template_path(template: str | Path) -> Path:
@@ -189,7 +193,7 @@ def load_template(template: str | Path) -> Template:
         raise ValueError(f"{path}: checks: above: names joints {unknown} it does not list")
     t = Template(str(doc.get("name", path.stem)), names, np.array(parents), np.array(pos),
                  np.array(tips), np.array(lim), long_axis, cue, np.array(root),
-                 [[str(n) for n in c] for c in above])
+                 [[str(n) for n in c] for c in above], str(doc.get("clip", "walk")))
     has_child = np.zeros(len(names), bool)
     has_child[t.parents[1:]] = True
     bad = [n for n, c, tp in zip(names, has_child, t.tips) if not c and not np.isfinite(tp).all()]
