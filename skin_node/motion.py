@@ -154,6 +154,13 @@ def load_motion(character: str, clip: str = "", bvh: str = "", mapping: str = ""
         source = load_bvh(bvh)
         # A character file picks its map by name: .../CesiumMan.glb -> cmu_to_cesiumman.yaml
         default = config_path(f"cmu_to_{Path(character).stem.lower()}.yaml")
+        if not mapping and not default.exists():
+            shipped = sorted(p.name for p in default.parent.glob("cmu_to_*.yaml"))
+            raise ValueError(f"{character}: no mapping from {Path(bvh).name}'s joints to this "
+                             f"character's: {default.name} is not in {default.parent}; write "
+                             f"one (shipped: {', '.join(shipped)}) and give it as the mapping")
+        if mapping and not Path(mapping).exists():
+            raise ValueError(f"{mapping}: no such mapping file")
         spec = load_mapping(mapping or default, skeleton, source)
         names, frames, rate = retarget_bvh(source, skeleton, spec)
         return Clip(Path(bvh).stem, list(names), np.asarray(frames), float(rate))

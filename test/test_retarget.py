@@ -358,3 +358,18 @@ def test_euler_roundtrip_is_used_consistently():
     Rs = (_axis_angle(np.array([0, 0, 1.0]), rad[0]) @ _axis_angle(np.array([1.0, 0, 0]), rad[1])
           @ _axis_angle(np.array([0, 1.0, 0]), rad[2]))
     np.testing.assert_allclose(R, C @ Rs @ C.T, atol=1e-9)
+
+
+def test_a_character_without_a_mapping_is_told_so():
+    """A BVH for a character no mapping ships for fails with what to do, not
+    with a bare missing-file error; so does a mapping path that is not there."""
+    from skin_node.motion import load_motion
+    walk = BVH_DIR / "cmu_02_01_walk.bvh"
+    simple = REPO.parent / "shared" / "data" / "rigged" / "RiggedSimple.glb"
+    if not (walk.is_file() and simple.is_file()):
+        pytest.skip("shared data not found")
+    with pytest.raises(ValueError, match=r"RiggedSimple.glb: no mapping .*cmu_to_riggedsimple"
+                                         r"\.yaml is not in .*shipped: .*cmu_to_humanoid\.yaml"):
+        load_motion(str(simple), bvh=str(walk))
+    with pytest.raises(ValueError, match="nowhere.yaml: no such mapping file"):
+        load_motion(str(simple), bvh=str(walk), mapping="nowhere.yaml")
