@@ -238,6 +238,29 @@ def test_cli_writes_csv_json_png(tmp_path):
     assert cli.main(["run", "--pipelines", "bogus", "--out", str(tmp_path)]) == 2
 
 
+def test_pairs_are_compared_with_dqs_frame_by_frame():
+    """How often, not only how bad: the share of frames within a tenth of DQS's
+    pairs there, the frames where DQS has none and ours some, and the sums."""
+    runs = [{"method": m, "scene": "s", "motion": "c"} for m in ("dqs", "default")]
+    dqs = [0, 10, 100, 50, 7, 0]
+    ours = [0, 1, 11, 5, np.nan, 2]     # frame 4 not counted (no pairs measured)
+    frames = {"s": {"c": {"dqs": [{"frame": k, "pairs": float(v)} for k, v in enumerate(dqs)],
+                          "default": [{"frame": k, "pairs": float(v)}
+                                      for k, v in enumerate(ours)]}}}
+    cli.frame_pairs_against_dqs(runs, frames)
+    d, ours_run = runs
+    assert "pairs_frames_within" not in d
+    # frames 0 (0 <= 0), 1 (1 <= 1) and 3 (5 <= 5) within; 2 (11 > 10) and 5 (2 > 0) not
+    assert ours_run["pairs_frames_within"] == pytest.approx(3 / 5)
+    assert ours_run["pairs_frames_over_none"] == 1
+    assert ours_run["pairs_sum_ratio"] == pytest.approx(19 / 160)
+    ours_run.update(ms_total_p50=2.0, ms_total_p90=3.0, bulge_mm=1.0,
+                    region_volume_ratio_deepest=1.0, region_volume_error_max=0.0,
+                    volume_ratio_min=1.0, pairs_max=11.0)
+    d.update(ms_total_p50=1.0, bulge_mm=2.0, pairs_max=100.0)
+    assert "| 60% (0.119) |" in cli.dqs_table(runs)
+
+
 def test_ros_latency_bad_character_is_one_line_and_exit_2(capsys):
     pytest.importorskip("rclpy")
     from skin_node.bench.ros_latency import main
