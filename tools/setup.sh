@@ -29,12 +29,14 @@ if [ ! -x .venv/bin/python ]; then
     "$PYTHON" -m venv .venv
   fi
 fi
+# tools/constraints.txt pins every version (see its header).
 stamp=.venv/.skin_node_deps
-if [ "$(cat "$stamp" 2>/dev/null)" != "${DEPS[*]}" ]; then
-  echo "setup: installing ${DEPS[*]}"
+want="${DEPS[*]} $(cksum < tools/constraints.txt)"
+if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+  echo "setup: installing ${DEPS[*]} (versions from tools/constraints.txt)"
   .venv/bin/python -m pip install --quiet --upgrade pip
-  .venv/bin/python -m pip install --quiet "${DEPS[@]}"
-  echo "${DEPS[*]}" > "$stamp"
+  .venv/bin/python -m pip install --quiet -c tools/constraints.txt "${DEPS[@]}"
+  echo "$want" > "$stamp"
 fi
 
 # --paths (not --base-paths): colcon must not crawl into .venv, whose wheels
