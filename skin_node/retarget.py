@@ -328,3 +328,84 @@ def continuous_euler(ang: np.ndarray, ref: int = 0) -> np.ndarray:
             prev = prev + np.where(use_b[..., None], db, da)
             out[t] = prev
     return out
+
+
+def bone_direction(skel: Skeleton, j: int) -> np.ndarray | None:
+    """The rest world direction (unit) of joint ``j``'s bone: to its only
+    child, or to its tip if it is a leaf; None for a joint with several
+    children (a pelvis, a chest) or a bone of no length."""
+    kids = skel.children(j)
+    if len(kids) == 1:
+        d = skel.rest_positions[kids[0]] - skel.rest_positions[j]
+    elif not kids:
+        d = skel.tips[j] - skel.rest_positions[j]
+    else:
+        return None
+    n = float(np.linalg.norm(d))
+    return d / n if n > 1e-12 else None
+
+
+def turn_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation (3, 3) taking unit vector ``a`` onto unit ``b``."""
+    v, c = np.cross(a, b), float(np.dot(a, b))
+    if c < -1.0 + 1e-12:          # opposite: a half turn about any normal of a
+        n = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        n /= np.linalg.norm(n)
+        return 2.0 * np.outer(n, n) - np.eye(3)
+    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return np.eye(3) + K + K @ K / (1.0 + c)
+
+
+def conform_clip(skel: Skeleton, frames: np.ndarray) -> np.ndarray:
+    """A clip written for a template's rest pose, turned for a skeleton fitted
+    to the template in another (``skel.reference``; unchanged when None).
+
+    Each bone ``j`` with a reference direction gets the world turn ``A_j``
+    that takes its rest direction onto the reference; the turned clip gives
+    every joint the world rotation ``D_j(t) @ A_j``, where ``D_j(t)`` is the
+    world turn the clip gives it from rest (``A_j`` the identity for the
+    other joints), so each such bone points at every frame where the
+    template's would. As for a BVH (module docstring)::
+
+        R(q'_j)(t) = W'_p(t)^T @ D_j(t) @ A_j @ Wrest_j @ Rrest_j^T
+
+    with ``W'_p(t) = D_p(t) @ A_p @ Wrest_p``. Frame by frame, made
+    continuous in time (:func:`continuous_euler`); the root's translation is
+    kept. An arm lowered 25 degrees in the mesh's rest pose then hangs where
+    the template's clip lowers the template's T-pose arm, not 25 degrees
+    further into the torso.
+
+    Parameters
+    ----------
+    skel : Skeleton
+    frames : (T, C) float
+        Channel vectors over ``skel.channel_names``.
+
+    Returns
+    -------
+    (T, C) float
+        A new array (``frames`` itself when ``skel`` has no reference).
+    """
+    ref = skel.reference
+    if ref is None or not np.isfinite(ref).any():
+        return frames
+    frames = np.asarray(frames, dtype=np.float64)
+    J = skel.n_joints
+    A = np.tile(np.eye(3), (J, 1, 1))
+    for j in range(J):
+        d = bone_direction(skel, j)
+        if d is not None and np.isfinite(ref[j]).all():
+            A[j] = turn_between(d, ref[j] / np.linalg.norm(ref[j]))
+    Wrest = skel.bind[:, :3, :3]
+    T = len(frames)
+    ang = np.empty((T, J, 3))
+    for t in range(T):
+        D = skel.world_matrices(frames[t])[:, :3, :3] @ np.swapaxes(Wrest, -1, -2)
+        W = D @ A @ Wrest                        # the world rotations wanted
+        for j in range(J):
+            p = skel.parents[j]
+            Wp = np.eye(3) if p < 0 else W[p]
+            ang[t, j] = matrix_to_euler_xyz(Wp.T @ W[j] @ skel.rest_rotations[j].T)
+    out = frames.copy()
+    out[:, 3:] = continuous_euler(ang, 0).reshape(T, 3 * J)
+    return out

@@ -76,6 +76,13 @@ class Skeleton:
     limits : (J, 3, 2) float
         Joint limits per rotation channel (min, max), radians; used by clips
         and the stability tests, never enforced on input.
+    reference : (J, 3) float, optional
+        For a skeleton fitted to a template: the world direction each bone
+        (to its only child, or its tip) has in the template's own rest pose,
+        the pose its built-in clips start from, where the fitted bone lies
+        apart from it (arms lowered in an A-pose, knees bent); NaN rows
+        elsewhere. Built-in clips are turned to it
+        (:func:`skin_node.retarget.conform_clip`); None: no such bone.
     """
 
     names: list
@@ -84,6 +91,7 @@ class Skeleton:
     rest_rotations: np.ndarray | None = None
     tips: np.ndarray | None = None
     limits: np.ndarray | None = None
+    reference: np.ndarray | None = None
     _children: list = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -116,6 +124,11 @@ class Skeleton:
         if self.limits is None:
             self.limits = np.tile(np.array([-np.pi, np.pi]), (J, 3, 1))
         self.limits = np.asarray(self.limits, dtype=np.float64)
+        if self.reference is not None:
+            self.reference = np.asarray(self.reference, dtype=np.float64)
+            if self.reference.shape != (J, 3):
+                raise ValueError(f"skeleton reference has shape {self.reference.shape}, "
+                                 f"expected ({J}, 3)")
         self._children = [[] for _ in range(J)]
         for j in range(1, J):
             self._children[self.parents[j]].append(j)

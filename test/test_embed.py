@@ -189,6 +189,69 @@ def test_an_embedded_character_plays_its_templates_clip_by_default(tmp_path):
     np.testing.assert_array_equal(clip.frames, quadruped_walk(skel))
 
 
+def test_a_mesh_modelled_in_an_a_pose_plays_the_clips_as_the_template_does(humanoid_mesh,
+                                                                          tmp_path):
+    """The built-in clips assume the template's rest pose, arms out level. A
+    mesh modelled with its arms lowered 35 degrees (our humanoid, posed by
+    DQS) played the walk's arms 35 degrees lower than the template, into the
+    torso: DQS crossed itself at 460 intersecting pairs and the default at
+    325, against 0 for both on the same body modelled in the T-pose. Its fit
+    records the template's arm directions and the clips are turned to them:
+    every arm bone points where the T-pose body's does at every frame (0.0
+    degrees apart, 35 raw), and the walk keeps the skin apart (0 pairs under
+    DQS and the default, every 8th frame).
+    A T-pose mesh's fit records none, and its clips are the template's, bit
+    for bit."""
+    import trimesh
+    from skin_node import Pipeline, make_clip
+    from skin_node.builtin.clips import CLIPS
+    from skin_node.character import load_character
+    from skin_node.kernels.intersect import SelfIntersections
+    from skin_node.metrics import SurfaceQuality
+    h = load_character("humanoid", surface_vertices=4000, progress=False)
+    a = np.radians(35.0)
+    X = Pipeline.preset(h, "dqs").deform(h.pose(l_shoulder_rx=-a, r_shoulder_rx=a))[:len(h.V)]
+    for name, V in (("t", h.V), ("a", X)):
+        trimesh.Trimesh(V, h.F, process=False).export(tmp_path / f"{name}.obj")
+        (tmp_path / f"{name}.yaml").write_text(f"mesh: {name}.obj\ntemplate: humanoid\n")
+    t = load_character(str(tmp_path / "t.yaml"), progress=False)
+    ap = load_character(str(tmp_path / "a.yaml"), progress=False)
+    assert t.skeleton.reference is None
+    np.testing.assert_array_equal(make_clip("walk", t.skeleton).frames, CLIPS["walk"](t.skeleton))
+    ref = ap.skeleton.reference
+    assert [ap.skeleton.names[j] for j in np.flatnonzero(np.isfinite(ref).all(1))] == \
+        ["l_shoulder", "l_elbow", "r_shoulder", "r_elbow"]
+    ft, fa = make_clip("walk", t.skeleton).frames, make_clip("walk", ap.skeleton).frames
+    raw = CLIPS["walk"](ap.skeleton)
+
+    def apart(frames):
+        err = []
+        for k in range(0, len(ft), 10):
+            Gt, Ga = t.skeleton.world_matrices(ft[k]), ap.skeleton.world_matrices(frames[k])
+            for n in ("l_shoulder", "l_elbow", "r_shoulder", "r_elbow"):
+                j = t.skeleton.index(n)
+                c = t.skeleton.children(j)[0]
+                u, v = Gt[c, :3, 3] - Gt[j, :3, 3], Ga[c, :3, 3] - Ga[j, :3, 3]
+                err.append(np.degrees(np.arccos(np.clip(
+                    u @ v / np.linalg.norm(u) / np.linalg.norm(v), -1.0, 1.0))))
+        return max(err)
+
+    assert apart(fa) < 1.0 and apart(raw) > 30.0, (apart(fa), apart(raw))
+    # the feet stay on the ground as the walk keeps them
+    ank = [ap.skeleton.index("l_ankle"), ap.skeleton.index("r_ankle")]
+    low = [ap.skeleton.world_matrices(q)[ank, 2, 3].min() for q in fa[::20]]
+    np.testing.assert_allclose(low, ap.skeleton.rest_positions[ank, 2].min(), atol=1e-9)
+    si, sq = SelfIntersections(ap.V, ap.F, 0.0), SurfaceQuality(ap.V, ap.F)
+
+    def worst(pipe, frames):
+        Vs = [pipe.deform(q)[:len(ap.V)].copy() for q in frames[::8]]
+        return max(len(si.pairs(V)) for V in Vs), max(sq(V)["folds90"] for V in Vs)
+
+    for pipe in (Pipeline.preset(ap, "dqs"), Pipeline(ap)):
+        (pc, fc), (pr, fr) = worst(pipe, fa), worst(pipe, raw)
+        assert pr >= 100 and pc == 0 and fc <= fr, (pc, fc, pr, fr)
+
+
 # ------------------------------------------------------- orientation and checks
 def turns() -> list:
     """The 24 rotations that take coordinate axes to coordinate axes."""

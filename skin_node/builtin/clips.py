@@ -119,6 +119,8 @@ def squat(skel: Skeleton, seconds: float = 4.0, knee_degrees: float = 150.0) -> 
 CLIPS = {"elbow_bend": elbow_bend, "wrist_twist": wrist_twist, "walk": walk, "squat": squat,
          "quadruped_walk": quadruped_walk}
 CLIP_NAMES = tuple(CLIPS)
+#: Clips that keep the lower foot at its rest height (:func:`_feet_on_ground`).
+GROUNDED = ("walk", "squat")
 DEFAULT_CLIPS = {"arm": "elbow_bend", "humanoid": "walk"}
 
 
@@ -131,4 +133,11 @@ def make_clip(name: str, skel: Skeleton) -> Clip:
     """A built-in clip for ``skel`` by name (:data:`CLIP_NAMES`)."""
     if name not in CLIPS:
         raise ValueError(f"unknown clip '{name}'; clips are {list(CLIPS)}")
-    return Clip(name=name, channel_names=skel.channel_names, frames=CLIPS[name](skel), fps=FPS)
+    frames = CLIPS[name](skel)
+    if skel.reference is not None:
+        # fitted to a template in another rest pose: the clip as the template plays it
+        from ..retarget import conform_clip
+        frames = conform_clip(skel, frames)
+        if name in GROUNDED:
+            _feet_on_ground(skel, frames)
+    return Clip(name=name, channel_names=skel.channel_names, frames=frames, fps=FPS)

@@ -65,6 +65,11 @@ TEMPLATE_DIRS = (Path(__file__).resolve().parents[2] / "config" / "templates",)
 
 #: Interior voxels aimed at: enough to resolve a humanoid's wrist, fast to path.
 TARGET_VOXELS = 60000
+#: Degrees a fitted bone of a template's ``pose_reference`` may lie from the
+#: template's rest direction before its clips are turned for it: a mesh
+#: modelled in the template's pose is fitted within a few degrees (our
+#: humanoid's arms and legs within 1.5), an A-pose's arms lie 20-45 apart.
+REFERENCE_TOL = 10.0
 
 
 # ------------------------------------------------------------------ templates
@@ -98,6 +103,13 @@ class Template:
     clip : str
         The built-in clip a character embedded with it plays when none is
         named (``clip:`` in the file; ``walk`` if absent).
+    pose_reference : list of str
+        Bones whose direction in the template's rest pose its clips assume
+        (``pose_reference:`` in the file: a T-pose's arms, straight legs). A
+        fit whose bone lies more than :data:`REFERENCE_TOL` degrees from it
+        (a mesh modelled in an A-pose, knees bent) records the template's
+        direction in :attr:`Skeleton.reference`, and built-in clips are
+        turned to it (:func:`skin_node.retarget.conform_clip`).
     """
 
     name: str
@@ -111,6 +123,7 @@ class Template:
     limb_root: np.ndarray | None = None
     above: list = field(default_factory=list)
     clip: str = "walk"
+    pose_reference: list = field(default_factory=list)
 
 
 def template_path(template: str | Path) -> Path:
@@ -191,9 +204,13 @@ def load_template(template: str | Path) -> Template:
     unknown = sorted({str(n) for c in above for n in c} - set(names))
     if unknown:
         raise ValueError(f"{path}: checks: above: names joints {unknown} it does not list")
+    ref = doc.get("pose_reference") or []
+    if not isinstance(ref, list) or sorted({str(n) for n in ref} - set(names)):
+        raise ValueError(f"{path}: pose_reference: must list joints of the template")
     t = Template(str(doc.get("name", path.stem)), names, np.array(parents), np.array(pos),
                  np.array(tips), np.array(lim), long_axis, cue, np.array(root),
-                 [[str(n) for n in c] for c in above], str(doc.get("clip", "walk")))
+                 [[str(n) for n in c] for c in above], str(doc.get("clip", "walk")),
+                 [str(n) for n in ref])
     has_child = np.zeros(len(names), bool)
     has_child[t.parents[1:]] = True
     bad = [n for n, c, tp in zip(names, has_child, t.tips) if not c and not np.isfinite(tp).all()]
@@ -703,7 +720,8 @@ def fit_template(V: np.ndarray, F: np.ndarray, template: str | Path | Template,
         rest = np.tile(np.eye(3), (len(pos), 1, 1))
         rest[0] = A
         skel = Skeleton(list(tmpl.names), tmpl.parents.copy(), pos, rest_rotations=rest,
-                        tips=tips, limits=tmpl.limits.copy())
+                        tips=tips, limits=tmpl.limits.copy(),
+                        reference=_pose_reference(V, tmpl, A, pos, tips))
         checks = check_fit(V, F, tmpl, skel, vol, raw_pos, moved, given)
         emb = Embedding(tmpl.name, skel, A, given, checks, k)
         if emb.passed:
@@ -715,22 +733,52 @@ def fit_template(V: np.ndarray, F: np.ndarray, template: str | Path | Template,
     return first
 
 
-def _place(V, tmpl: Template, A, vol) -> tuple[np.ndarray, np.ndarray]:
-    """(J, 3) joints and tips of the template fitted in frame ``A`` (steps 2 to 5
-    of the module docstring), before symmetry and the inside check."""
+def _template_in(V, tmpl: Template, A) -> tuple[np.ndarray, np.ndarray]:
+    """(J, 3) joints and tips of the template scaled to the mesh's box in
+    frame ``A`` (tips NaN where the template has none)."""
     Q = V @ A                                   # template-frame coordinates
     qlo, qhi = Q.min(0), Q.max(0)
 
     def scaled(p):
         return (qlo + np.asarray(p) * (qhi - qlo)) @ A.T
 
+    return (scaled(tmpl.positions),
+            np.where(np.isfinite(tmpl.tips), scaled(np.nan_to_num(tmpl.tips)), np.nan))
+
+
+def _pose_reference(V, tmpl: Template, A, pos, tips) -> np.ndarray | None:
+    """(J, 3) :attr:`Skeleton.reference` of a fit (joints ``pos``, ``tips``):
+    the template's rest direction of each ``pose_reference`` bone that lies
+    more than REFERENCE_TOL degrees from the fitted one; None if none does."""
+    if not tmpl.pose_reference:
+        return None
+    guess, tip_guess = _template_in(V, tmpl, A)
+    J = len(tmpl.names)
+    kids = [[c for c in range(J) if tmpl.parents[c] == j] for j in range(J)]
+    ref = np.full((J, 3), np.nan)
+    for name in tmpl.pose_reference:
+        j = tmpl.names.index(name)
+        if len(kids[j]) > 1:
+            continue
+        end, tend = (pos[kids[j][0]], guess[kids[j][0]]) if kids[j] else (tips[j], tip_guess[j])
+        d, t = end - pos[j], tend - guess[j]
+        if np.linalg.norm(d) < 1e-12 or np.linalg.norm(t) < 1e-12:
+            continue
+        d, t = d / np.linalg.norm(d), t / np.linalg.norm(t)
+        if np.degrees(np.arccos(np.clip(d @ t, -1.0, 1.0))) > REFERENCE_TOL:
+            ref[j] = t
+    return ref if np.isfinite(ref).any() else None
+
+
+def _place(V, tmpl: Template, A, vol) -> tuple[np.ndarray, np.ndarray]:
+    """(J, 3) joints and tips of the template fitted in frame ``A`` (steps 2 to 5
+    of the module docstring), before symmetry and the inside check."""
     J = len(tmpl.names)
     par = tmpl.parents
     kids = [[] for _ in range(J)]
     for j in range(1, J):
         kids[par[j]].append(j)
-    guess = scaled(tmpl.positions)
-    tip_guess = np.where(np.isfinite(tmpl.tips), scaled(np.nan_to_num(tmpl.tips)), np.nan)
+    guess, tip_guess = _template_in(V, tmpl, A)
     h = vol.h
 
     pos = np.full((J, 3), np.nan)
