@@ -12,7 +12,9 @@ clip NAME of this character":
   wins over a built-in clip of the same name; with no clip asked for, a glTF
   character plays its first animation;
 * a **BVH file**, retargeted through a mapping (default
-  ``config/cmu_to_<character file name>.yaml``).
+  ``config/cmu_to_<character file name>.yaml``; for a character file fitted
+  to a template with none of its own, the template's,
+  ``config/cmu_to_<template>.yaml``, turned to the fit's axes and rest pose).
 
 Only the skeleton is read: no tet mesh or weights are built.
 """
@@ -27,9 +29,9 @@ from .builtin.characters import BUILTIN_CHARACTERS
 from .builtin.clips import CLIP_NAMES, Clip, default_clip_name, make_clip
 from .character import load_character
 from .io.bvh import load_bvh
-from .io.character_file import file_clip_name, load_character_file
+from .io.character_file import file_clip_name, file_template, load_character_file
 from .io.gltf import gltf_animation_names, load_gltf_scene
-from .retarget import load_mapping, retarget_bvh
+from .retarget import load_mapping, retarget_bvh, template_axes
 from .skeleton import Skeleton
 
 #: Prefix that names a glTF file's animation explicitly.
@@ -154,6 +156,12 @@ def load_motion(character: str, clip: str = "", bvh: str = "", mapping: str = ""
         source = load_bvh(bvh)
         # A character file picks its map by name: .../CesiumMan.glb -> cmu_to_cesiumman.yaml
         default = config_path(f"cmu_to_{Path(character).stem.lower()}.yaml")
+        tmpl = file_template(Path(character)) if not mapping and not default.exists() else None
+        fitted = tmpl is not None and config_path(f"cmu_to_{tmpl.name}.yaml").exists()
+        if fitted:
+            # fitted to a template: the template's mapping, in the fit's axes
+            # (its rest pose: retarget_bvh takes the fit's reference pose)
+            default = config_path(f"cmu_to_{tmpl.name}.yaml")
         if not mapping and not default.exists():
             shipped = sorted(p.name for p in default.parent.glob("cmu_to_*.yaml"))
             raise ValueError(f"{character}: no mapping from {Path(bvh).name}'s joints to this "
@@ -162,6 +170,8 @@ def load_motion(character: str, clip: str = "", bvh: str = "", mapping: str = ""
         if mapping and not Path(mapping).exists():
             raise ValueError(f"{mapping}: no such mapping file")
         spec = load_mapping(mapping or default, skeleton, source)
+        if fitted:
+            spec["axes"] = template_axes(spec, skeleton)
         names, frames, rate = retarget_bvh(source, skeleton, spec)
         return Clip(Path(bvh).stem, list(names), np.asarray(frames), float(rate))
     if not clip and file_animations(character):

@@ -96,6 +96,20 @@ def axis_conversion(mapping: dict) -> np.ndarray:
     return Tb @ S.T
 
 
+def template_axes(mapping: dict, skeleton: Skeleton) -> np.ndarray:
+    """``axes`` for a template's mapping used on a skeleton fitted to that
+    template: the mapping's source axes onto the fit's own forward, up and
+    left (the root's rest rotation has the mesh's forward, left and up as
+    columns, whatever way the mesh was modelled)."""
+    where = mapping.get("_file", "<mapping>")
+    u = _axis_vector(mapping.get("source_up", "+y"), "source_up", where)
+    f = _axis_vector(mapping.get("source_forward", "+z"), "source_forward", where)
+    S = np.stack([f, u, np.cross(u, f)], axis=1)
+    R0 = skeleton.rest_rotations[0]
+    Tb = np.stack([R0[:, 0], R0[:, 2], R0[:, 1]], axis=1)    # forward, up, left
+    return Tb @ S.T
+
+
 def validate_mapping(mapping: dict, skeleton: Skeleton | None = None,
                      bvh: Bvh | None = None) -> None:
     """Check a mapping's structure and, if given, its joint names.
@@ -204,8 +218,9 @@ def retarget_bvh(bvh: Bvh, skeleton: Skeleton, mapping: dict,
     bvh : Bvh
         Source motion (lengths in metres as loaded).
     skeleton : Skeleton
-        Target; its rest pose (``q = 0``, or ``rest_offsets``) is taken to
-        match the source's reference frame.
+        Target; its rest pose (``q = 0``, or ``rest_offsets``; with none, a
+        skeleton fitted to a template in another rest pose takes
+        :func:`reference_pose`) is taken to match the source's reference frame.
     mapping : dict
         From :func:`load_mapping` (or an equivalent dict).
     reference_frame : int, optional
@@ -241,7 +256,11 @@ def retarget_bvh(bvh: Bvh, skeleton: Skeleton, mapping: dict,
 
     # Pose matching the source reference, and its world rotations.
     q_ref = np.zeros(skeleton.n_channels)
-    for name, ang in (mapping.get("rest_offsets") or {}).items():
+    offsets = mapping.get("rest_offsets")
+    if not offsets and skeleton.reference is not None:
+        # fitted to a template in another rest pose: its template's rest pose
+        q_ref = reference_pose(skeleton)
+    for name, ang in (offsets or {}).items():
         j = skeleton.index(name)
         q_ref[3 + 3 * j: 6 + 3 * j] = np.deg2rad(np.asarray(ang, dtype=np.float64))
     W_ref = skeleton.world_matrices(q_ref)[:, :3, :3]     # (J, 3, 3)
@@ -274,8 +293,14 @@ def retarget_bvh(bvh: Bvh, skeleton: Skeleton, mapping: dict,
     root = bvh.index(mapping.get("source_root", bvh.names[0]))
     scale = mapping.get("scale", "auto")
     if scale == "auto":
-        up_s = C.T @ _axis_vector(mapping.get("target_up", "+z"), "target_up", where)
-        up_t = _axis_vector(mapping.get("target_up", "+z"), "target_up", where)
+        if mapping.get("axes") is not None and mapping.get("source_up") is not None:
+            # axes given with the source's up (a template's mapping turned
+            # to a fit's axes, template_axes): the target's up is its image
+            up_s = _axis_vector(mapping["source_up"], "source_up", where)
+            up_t = C @ up_s
+        else:
+            up_s = C.T @ _axis_vector(mapping.get("target_up", "+z"), "target_up", where)
+            up_t = _axis_vector(mapping.get("target_up", "+z"), "target_up", where)
         hs = hip_height_source(bvh, G, ref, root, up_s)
         ht = hip_height_target(skeleton, up_t)
         if hs <= 1e-9 or ht <= 1e-9:
@@ -386,26 +411,55 @@ def conform_clip(skel: Skeleton, frames: np.ndarray) -> np.ndarray:
     (T, C) float
         A new array (``frames`` itself when ``skel`` has no reference).
     """
-    ref = skel.reference
-    if ref is None or not np.isfinite(ref).any():
+    A = _reference_turns(skel)
+    if A is None:
         return frames
     frames = np.asarray(frames, dtype=np.float64)
     J = skel.n_joints
-    A = np.tile(np.eye(3), (J, 1, 1))
-    for j in range(J):
-        d = bone_direction(skel, j)
-        if d is not None and np.isfinite(ref[j]).all():
-            A[j] = turn_between(d, ref[j] / np.linalg.norm(ref[j]))
     Wrest = skel.bind[:, :3, :3]
     T = len(frames)
     ang = np.empty((T, J, 3))
     for t in range(T):
         D = skel.world_matrices(frames[t])[:, :3, :3] @ np.swapaxes(Wrest, -1, -2)
-        W = D @ A @ Wrest                        # the world rotations wanted
-        for j in range(J):
-            p = skel.parents[j]
-            Wp = np.eye(3) if p < 0 else W[p]
-            ang[t, j] = matrix_to_euler_xyz(Wp.T @ W[j] @ skel.rest_rotations[j].T)
+        ang[t] = _channels_for(skel, D @ A @ Wrest)     # the world rotations wanted
     out = frames.copy()
     out[:, 3:] = continuous_euler(ang, 0).reshape(T, 3 * J)
     return out
+
+
+def reference_pose(skel: Skeleton) -> np.ndarray | None:
+    """The pose (channels) that puts a skeleton fitted to a template into
+    the template's rest pose (each ``skel.reference`` bone along its
+    reference; :func:`conform_clip` at ``q = 0``), or None when it has no
+    reference. A BVH whose reference frame is the template's rest pose (a
+    CMU T-pose onto the humanoid template) takes it as its rest offsets."""
+    A = _reference_turns(skel)
+    if A is None:
+        return None
+    q = np.zeros(skel.n_channels)
+    q[3:] = _channels_for(skel, A @ skel.bind[:, :3, :3]).ravel()
+    return q
+
+
+def _reference_turns(skel: Skeleton) -> np.ndarray | None:
+    """(J, 3, 3) world turns from each bone's rest direction onto its
+    reference (the identity for bones without one); None without any."""
+    ref = skel.reference
+    if ref is None or not np.isfinite(ref).any():
+        return None
+    A = np.tile(np.eye(3), (skel.n_joints, 1, 1))
+    for j in range(skel.n_joints):
+        d = bone_direction(skel, j)
+        if d is not None and np.isfinite(ref[j]).all():
+            A[j] = turn_between(d, ref[j] / np.linalg.norm(ref[j]))
+    return A
+
+
+def _channels_for(skel: Skeleton, W: np.ndarray) -> np.ndarray:
+    """(J, 3) principal channels giving the joints world rotations ``W``."""
+    ang = np.empty((skel.n_joints, 3))
+    for j in range(skel.n_joints):
+        p = skel.parents[j]
+        Wp = np.eye(3) if p < 0 else W[p]
+        ang[j] = matrix_to_euler_xyz(Wp.T @ W[j] @ skel.rest_rotations[j].T)
+    return ang

@@ -42,18 +42,25 @@ def _fail(path: Path, msg: str):
     raise CharacterFileError(f"{path}: {msg}")
 
 
-def file_clip_name(path: Path) -> str | None:
-    """The built-in clip the character of file ``path`` plays when none is
-    named: its skeleton template's (``clip:`` of ``config/templates/*.yaml``;
-    a quadruped walks as a quadruped), None for hand-placed joints or a file
+def file_template(path: Path):
+    """The :class:`~skin_node.rigging.embed.Template` the character file
+    ``path`` fits its skeleton from, None for hand-placed joints or a file
     that cannot say (loading it reports why)."""
     try:
         doc = yaml.safe_load(Path(path).read_text())
         if isinstance(doc, dict) and "template" in doc and "joints" not in doc:
-            return load_template(str(doc["template"])).clip
+            return load_template(str(doc["template"]))
     except (OSError, UnicodeDecodeError, yaml.YAMLError, ValueError):
         pass
     return None
+
+
+def file_clip_name(path: Path) -> str | None:
+    """The built-in clip the character of file ``path`` plays when none is
+    named: its skeleton template's (``clip:`` of ``config/templates/*.yaml``;
+    a quadruped walks as a quadruped), None as for :func:`file_template`."""
+    t = file_template(path)
+    return t.clip if t is not None else None
 
 
 def load_character_file(path: Path, verbose: bool = True):
