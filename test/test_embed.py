@@ -299,6 +299,33 @@ def test_a_fitted_mesh_takes_cmu_mocap_through_its_templates_mapping(tmp_path):
     assert max(go) < 1.03 * min(go) and min(go) > 2.0, go
 
 
+def test_the_walk_goes_forward_on_the_ground_whatever_way_a_mesh_faces(tmp_path):
+    """The built-in walk moves the root along the skeleton's forward and keeps
+    the lower ankle at its rest height along its up (the root's rest rotation:
+    x and z for the built-ins, bit for bit as before). Our humanoid saved y up
+    and facing -z, as glTF files are: it walks 4.8 m along -z, not sideways
+    along x, and its feet stay on the ground along its up (grounded along z,
+    the same mesh facing +x and y up lifted them up to 60 mm)."""
+    import trimesh
+    from skin_node import make_clip
+    from skin_node.builtin.characters import make_humanoid
+    from skin_node.motion import character_skeleton
+    V, F, _ = make_humanoid(4000)
+    R = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])  # x -> -z, z -> y
+    assert np.allclose(R @ R.T, np.eye(3)) and np.linalg.det(R) > 0
+    trimesh.Trimesh(V @ R.T, F, process=False).export(tmp_path / "m.obj")
+    (tmp_path / "m.yaml").write_text("mesh: m.obj\ntemplate: humanoid\n")
+    sk = character_skeleton(str(tmp_path / "m.yaml"))
+    np.testing.assert_allclose(sk.rest_rotations[0], R, atol=1e-9)
+    f = make_clip("walk", sk).frames
+    d = f[-1, :3] - f[0, :3]                # along up only what the grounding moves
+    np.testing.assert_allclose(d[[0, 2]], [0.0, -1.2 * (len(f) - 1) / 120], atol=1e-9)
+    assert abs(d[1]) < 1e-3, d
+    ank = [sk.index("l_ankle"), sk.index("r_ankle")]
+    low = [(sk.world_matrices(q)[ank, :3, 3] @ R[:, 2]).min() for q in f[::10]]
+    np.testing.assert_allclose(low, (sk.rest_positions[ank] @ R[:, 2]).min(), atol=1e-9)
+
+
 # ------------------------------------------------------- orientation and checks
 def turns() -> list:
     """The 24 rotations that take coordinate axes to coordinate axes."""

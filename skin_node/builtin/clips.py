@@ -44,12 +44,15 @@ def _ramp(T: int) -> np.ndarray:
 
 
 def _feet_on_ground(skel: Skeleton, frames: np.ndarray, feet=("l_ankle", "r_ankle")) -> None:
-    """Lower or raise the root so the lower ankle stays at its rest height."""
+    """Lower or raise the root so the lower ankle stays at its rest height
+    (along the skeleton's up: the root's rest rotation's third column, z for
+    the built-ins, whatever way a mesh fitted to a template was modelled)."""
     idx = [skel.index(f) for f in feet]
-    rest_z = skel.rest_positions[idx, 2].min()
+    up = skel.rest_rotations[0][:, 2]
+    rest = (skel.rest_positions[idx] @ up).min()
     for t in range(len(frames)):
         G = skel.world_matrices(frames[t])
-        frames[t, 2] += rest_z - G[idx, 2, 3].min()
+        frames[t, :3] += up * (rest - (G[idx, :3, 3] @ up).min())
 
 
 def elbow_bend(skel: Skeleton, seconds: float = 3.0, degrees: float = 150.0) -> np.ndarray:
@@ -94,7 +97,8 @@ def walk(skel: Skeleton, seconds: float = 4.0, cadence: float = 1.0) -> np.ndarr
         put(f"{side}_elbow_rz", -sgn * (0.35 + 0.2 * np.sin(p + np.pi)))
     put("spine_rz", 0.08 * np.sin(ph))
     put("chest_rz", -0.12 * np.sin(ph))
-    put("root_tx", 1.2 * np.arange(T) / FPS)           # about 1.2 m/s
+    # about 1.2 m/s along the skeleton's forward (x for the built-ins)
+    frames[:, :3] += np.outer(1.2 * np.arange(T) / FPS, skel.rest_rotations[0][:, 0])
     _feet_on_ground(skel, frames)
     return frames
 
