@@ -80,7 +80,7 @@ class Skeleton:
         For a skeleton fitted to a template: the world direction each bone
         (to its only child, or its tip) has in the template's own rest pose,
         the pose its built-in clips start from, where the fitted bone lies
-        apart from it (arms lowered in an A-pose, knees bent); NaN rows
+        apart from it (arms lowered in an A-pose); NaN rows
         elsewhere. Built-in clips are turned to it
         (:func:`skin_node.retarget.conform_clip`); None: no such bone.
     """

@@ -68,7 +68,8 @@ TARGET_VOXELS = 60000
 #: Degrees a fitted bone of a template's ``pose_reference`` may lie from the
 #: template's rest direction before its clips are turned for it: a mesh
 #: modelled in the template's pose is fitted within a few degrees (our
-#: humanoid's arms and legs within 1.5), an A-pose's arms lie 20-45 apart.
+#: humanoid's arms within 0.1, its legs within 3.6), an A-pose's arms lie
+#: 20-45 apart (CesiumMan's 26, our humanoid's lowered 35 degrees 34-35).
 REFERENCE_TOL = 10.0
 
 
@@ -105,9 +106,9 @@ class Template:
         named (``clip:`` in the file; ``walk`` if absent).
     pose_reference : list of str
         Bones whose direction in the template's rest pose its clips assume
-        (``pose_reference:`` in the file: a T-pose's arms, straight legs). A
+        (``pose_reference:`` in the file: the humanoid's arms, out level). A
         fit whose bone lies more than :data:`REFERENCE_TOL` degrees from it
-        (a mesh modelled in an A-pose, knees bent) records the template's
+        (a mesh modelled in an A-pose) records the template's
         direction in :attr:`Skeleton.reference`, and built-in clips are
         turned to it (:func:`skin_node.retarget.conform_clip`).
     """
