@@ -451,6 +451,31 @@ def test_inflation_is_reverted_where_it_still_folds_the_skin(monkeypatch, charac
     assert vo >= 0.97 and vo >= 0.995 * vw, (vo, vw)
 
 
+def test_coarse_corners_of_a_fine_part_keep_inflation_from_folding_them(monkeypatch,
+                                                                         characters, tmp_path):
+    """CesiumMan's mesh as a plain mesh fitted to the humanoid template: its
+    chest part is mostly fine skin, so its coarse triangles at the shoulders
+    were no coarse part's, and inflation's bent-edge checks passed them by:
+    the built-in walk (every 4th frame) kept 152 sharp folds there where DQS
+    has none. Checked on every triangle with a coarse corner
+    (COARSE_CORNERS): no sharp fold (0), no more intersecting pairs (0
+    against 24) and roughness no higher (1.0127 against 1.0132)."""
+    import trimesh
+    import skin_node.stages.shape as shape
+    from skin_node import make_clip
+    from skin_node.character import load_character as load
+    ch = characters["automatic"]
+    trimesh.Trimesh(ch.V, ch.F, process=False).export(tmp_path / "cman.obj")
+    (tmp_path / "cman.yaml").write_text("mesh: cman.obj\ntemplate: humanoid\n")
+    fitted = load(str(tmp_path / "cman.yaml"), progress=False)
+    qs = make_clip("walk", fitted.skeleton).frames[::4]
+    o = _sums(fitted, qs, Pipeline(fitted))
+    monkeypatch.setattr(shape, "COARSE_CORNERS", False)
+    w = _sums(fitted, qs, Pipeline(fitted))
+    assert w["folds"] >= 50 and o["folds"] == 0, (o, w)
+    assert o["pairs"] <= w["pairs"] and o["rough"] <= w["rough"], (o, w)
+
+
 def test_layers_past_the_bulge_envelope_stop_at_an_outer_one(monkeypatch, characters,
                                                               motions):
     """Where a coarse joint's region is still short once its layers within
