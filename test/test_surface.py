@@ -441,6 +441,17 @@ HOLD_OUT = {
                           r_shoulder_rx=1.2),
     "knee to chest": dict(l_hip_ry=-2.3, l_knee_ry=2.4, l_shoulder_rx=-1.2, r_shoulder_rx=1.2),
     "chin to chest": dict(neck_ry=0.6, head_ry=0.5, l_shoulder_rx=-1.2, r_shoulder_rx=1.2),
+    "deep crouch": dict(l_hip_ry=-2.0, r_hip_ry=-2.0, l_knee_ry=2.5, r_knee_ry=2.5,
+                        l_ankle_ry=-0.6, r_ankle_ry=-0.6, spine_ry=0.4, l_shoulder_rx=-1.2,
+                        r_shoulder_rx=1.2),
+    "fists to shoulders": dict(l_shoulder_rx=-1.2, r_shoulder_rx=1.2, l_shoulder_rz=0.8,
+                               r_shoulder_rz=-0.8, l_elbow_rz=-2.4, r_elbow_rz=2.4),
+    "boxing guard": dict(l_shoulder_rx=-0.9, r_shoulder_rx=0.9, l_shoulder_rz=1.0,
+                         r_shoulder_rz=-1.0, l_elbow_rz=-2.0, r_elbow_rz=2.0),
+    "legs crossed": dict(l_hip_rx=-0.35, r_hip_rx=0.2, l_hip_ry=-0.3, l_shoulder_rx=-1.2,
+                         r_shoulder_rx=1.2),
+    "arms out, elbows at 120": dict(l_elbow_rz=-2.1, r_elbow_rz=2.1),
+    "heel to buttock": dict(r_hip_ry=0.9, r_knee_ry=1.9, l_shoulder_rx=-1.2, r_shoulder_rx=1.2),
 }
 
 
@@ -448,8 +459,10 @@ HOLD_OUT = {
 def test_poses_beyond_the_clips_meet_dqs_on_every_measure(humanoid, pose):
     """Poses no clip holds, against DQS on the same weights: at most a tenth
     of its intersecting pairs (kneeling 0 against 399, the elbows at 160
-    degrees 0 against 577, a knee to the chest 0 against 200), no more sharp
-    folds (2 against 9 at the elbows, 0 against 16 at the knee), roughness
+    degrees 0 against 577, a knee to the chest 0 against 200, a deep crouch
+    0 against 360, legs crossed 0 against 259), no more sharp folds (2
+    against 9 at the elbows, 0 against 16 at the knee, 0 against 27 in the
+    crouch, 0 against 16 in a boxing guard), roughness
     within 5%, no more bulge, every bent joint's region within 3% of rest and
     the whole mesh within 3% of its volume. (Limbs driven deep into each
     other's rest flesh, arms crossed or curled up tight, are a known limit.)"""
