@@ -90,7 +90,8 @@ def _parse(argv: list[str]) -> argparse.Namespace:
                     help="sampling rate of a glTF animation (default: %(default)g)")
     ap.add_argument("--bvh", default="", help="BVH file to retarget and play instead")
     ap.add_argument("--mapping", default="",
-                    help="retarget mapping YAML (default: config/cmu_to_<character name>.yaml)")
+                    help="retarget mapping YAML (default: config/cmu_to_<character name>.yaml, "
+                         "else for a mesh fitted to a template the template's)")
     ap.add_argument("--name-map", dest="name_map", default="",
                     help="publish under the incoming names of this name map")
     ap.add_argument("--rate", type=float, default=1.0, help="speed factor")

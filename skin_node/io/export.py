@@ -43,7 +43,8 @@ Command line (``python -m skin_node.io.export``)::
 The clip is a built-in one (``--clip NAME``), a glTF character's own animation
 (``--clip NAME`` or ``gltf:NAME``, ``--clip file`` for the first, which is also
 the default; sampled at ``--fps``, 120 by default), a BVH retargeted through
-``--mapping`` (default ``config/cmu_to_<character name>.yaml``), or the
+``--mapping`` (default ``config/cmu_to_<character name>.yaml``, else for a
+mesh fitted to a template the template's), or the
 ``skin/points`` messages of a recorded bag (rosbag2 or ROS 1; ``--bag``; no
 deformation is run, the points are the recorded ones, in the character's
 vertex order). Each output's line reports its size per frame (and for a
