@@ -203,15 +203,29 @@ def _pull(X, i, seg, r0, hold, A, B, width, fade, pairs, allowed):
                 qx, qy, qz = cx + ux * c, cy + uy * c, cz + uz * c
                 moved = True
     for _ in range(ROUNDS - 1):
-        for s in range(k):
-            if allowed[i, s] >= NO_LIMIT:
-                continue
-            cx, cy, cz = _closest_on_segment(qx, qy, qz, A, B, seg[i, s])
-            ux, uy, uz = qx - cx, qy - cy, qz - cz
-            r = math.sqrt(ux * ux + uy * uy + uz * uz)
-            if r > allowed[i, s] and r > 1e-12:
-                c = allowed[i, s] / r
-                qx, qy, qz = cx + ux * c, cy + uy * c, cz + uz * c
+        qx, qy, qz = _project_round(qx, qy, qz, i, seg, A, B, allowed)
+    return _move_by(X, i, f, px, py, pz, qx, qy, qz)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _project_round(qx, qy, qz, i, seg, A, B, allowed):
+    """One round of projections of point ``q`` onto vertex ``i``'s limits
+    from each of its segments (towards each one's closest point)."""
+    for s in range(seg.shape[1]):
+        if allowed[i, s] >= NO_LIMIT:
+            continue
+        cx, cy, cz = _closest_on_segment(qx, qy, qz, A, B, seg[i, s])
+        ux, uy, uz = qx - cx, qy - cy, qz - cz
+        r = math.sqrt(ux * ux + uy * uy + uz * uz)
+        if r > allowed[i, s] and r > 1e-12:
+            c = allowed[i, s] / r
+            qx, qy, qz = cx + ux * c, cy + uy * c, cz + uz * c
+    return qx, qy, qz
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _move_by(X, i, f, px, py, pz, qx, qy, qz):
+    """Vertex ``i`` (at ``p``) moved ``f`` of the way to ``q``: 1 if it moved."""
     if qx == px and qy == py and qz == pz:
         return 0
     X[i, 0] = px + f * (qx - px)
@@ -229,21 +243,8 @@ def _limit(X, i, seg, A, B, fade, allowed):
     px, py, pz = X[i, 0], X[i, 1], X[i, 2]
     qx, qy, qz = px, py, pz
     for _ in range(ROUNDS):
-        for s in range(seg.shape[1]):
-            if allowed[i, s] >= NO_LIMIT:
-                continue
-            cx, cy, cz = _closest_on_segment(qx, qy, qz, A, B, seg[i, s])
-            ux, uy, uz = qx - cx, qy - cy, qz - cz
-            r = math.sqrt(ux * ux + uy * uy + uz * uz)
-            if r > allowed[i, s] and r > 1e-12:
-                c = allowed[i, s] / r
-                qx, qy, qz = cx + ux * c, cy + uy * c, cz + uz * c
-    if qx == px and qy == py and qz == pz:
-        return 0
-    X[i, 0] = px + f * (qx - px)
-    X[i, 1] = py + f * (qy - py)
-    X[i, 2] = pz + f * (qz - pz)
-    return 1
+        qx, qy, qz = _project_round(qx, qy, qz, i, seg, A, B, allowed)
+    return _move_by(X, i, f, px, py, pz, qx, qy, qz)
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
