@@ -46,7 +46,7 @@ translation channels stay in world axes.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numba
@@ -58,6 +58,7 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from ..kernels.collision import _closest_on_triangle
+from ..retarget import bone_direction
 from ..skeleton import Skeleton
 
 #: Where template names (``"humanoid"``, ``"quadruped"``) are looked up.
@@ -721,8 +722,8 @@ def fit_template(V: np.ndarray, F: np.ndarray, template: str | Path | Template,
         rest = np.tile(np.eye(3), (len(pos), 1, 1))
         rest[0] = A
         skel = Skeleton(list(tmpl.names), tmpl.parents.copy(), pos, rest_rotations=rest,
-                        tips=tips, limits=tmpl.limits.copy(),
-                        reference=_pose_reference(V, tmpl, A, pos, tips))
+                        tips=tips, limits=tmpl.limits.copy())
+        skel = replace(skel, reference=_pose_reference(V, tmpl, A, skel))
         checks = check_fit(V, F, tmpl, skel, vol, raw_pos, moved, given)
         emb = Embedding(tmpl.name, skel, A, given, checks, k)
         if emb.passed:
@@ -747,25 +748,23 @@ def _template_in(V, tmpl: Template, A) -> tuple[np.ndarray, np.ndarray]:
             np.where(np.isfinite(tmpl.tips), scaled(np.nan_to_num(tmpl.tips)), np.nan))
 
 
-def _pose_reference(V, tmpl: Template, A, pos, tips) -> np.ndarray | None:
-    """(J, 3) :attr:`Skeleton.reference` of a fit (joints ``pos``, ``tips``):
-    the template's rest direction of each ``pose_reference`` bone that lies
-    more than REFERENCE_TOL degrees from the fitted one; None if none does."""
+def _pose_reference(V, tmpl: Template, A, skel: Skeleton) -> np.ndarray | None:
+    """(J, 3) :attr:`Skeleton.reference` of a fit ``skel``: the template's
+    rest direction of each ``pose_reference`` bone that lies more than
+    REFERENCE_TOL degrees from the fitted one; None if none does."""
     if not tmpl.pose_reference:
         return None
     guess, tip_guess = _template_in(V, tmpl, A)
-    J = len(tmpl.names)
-    kids = [[c for c in range(J) if tmpl.parents[c] == j] for j in range(J)]
-    ref = np.full((J, 3), np.nan)
+    ref = np.full((skel.n_joints, 3), np.nan)
     for name in tmpl.pose_reference:
-        j = tmpl.names.index(name)
-        if len(kids[j]) > 1:
+        j = skel.index(name)
+        d, kids = bone_direction(skel, j), skel.children(j)   # the template's tree
+        if d is None:
             continue
-        end, tend = (pos[kids[j][0]], guess[kids[j][0]]) if kids[j] else (tips[j], tip_guess[j])
-        d, t = end - pos[j], tend - guess[j]
-        if np.linalg.norm(d) < 1e-12 or np.linalg.norm(t) < 1e-12:
+        t = (guess[kids[0]] if kids else tip_guess[j]) - guess[j]
+        if np.linalg.norm(t) < 1e-12:
             continue
-        d, t = d / np.linalg.norm(d), t / np.linalg.norm(t)
+        t = t / np.linalg.norm(t)
         if np.degrees(np.arccos(np.clip(d @ t, -1.0, 1.0))) > REFERENCE_TOL:
             ref[j] = t
     return ref if np.isfinite(ref).any() else None
