@@ -93,6 +93,14 @@ def meshes(split: bool = False) -> dict:
     out = {"torso": (-1, [5.0, 5.0, 5.0], [(*torso, TRIANGLES)], 0),  # a skinned node's
            "legs": (-1, [0.0, 0.0, 0.0], [(*m, TRIANGLES) for m in legs], 1),  # place: ignored
            "skirt": (-1, [0.0, 0.0, 0.0], [(*tube(0.32, 0.8, 1.1), TRIANGLES)], 1),
+           # a closed cap on the torso's top edge: they share one edge's two
+           # vertices, so joined that edge has four triangles
+           "cap": (-1, [0.0, 0.0, 0.0],
+                   [(*box((0.15, 1.75, -0.1), (0.25, 1.85, -0.05)), TRIANGLES)], 0),
+           # two closed plates through each other (a robot's armour): no flesh
+           "armour": (-1, [0.0, 0.0, 0.0],
+                      [(*box((-0.1, 1.2, 0.12), (0.1, 1.4, 0.16)), TRIANGLES),
+                       (*box((-0.05, 1.3, 0.1), (0.05, 1.5, 0.18)), TRIANGLES)], 0),
            "teeth": (-1, [0.0, 0.0, 0.0],
                      [(*box((-0.02, 1.6, 0.11), (0.02, 1.61, 0.12)), TRIANGLES)], 0),
            "eye": (6, [0.03, 0.0, 0.05], [(*box((-0.01, -0.01, -0.01), (0.01, 0.01, 0.01)),
@@ -345,6 +353,37 @@ def test_a_split_character_is_solved_whole(tmp_path):
     assert len(np.intersect1d(parts["torso"].rows, parts["lower"].rows)) > 0   # the seam
     np.testing.assert_allclose(np.sort(split.V, axis=0), np.sort(whole.V, axis=0), atol=1e-12)
     assert len(split.F) == len(whole.F)
+
+
+def test_parts_that_touch_but_do_not_join_leave_the_largest_solved(tmp_path):
+    """A cap set on the torso's edge (a robot's joint cap on its shell): joined
+    they are not a surface; the torso, closed alone, is the body and the cap
+    rides along skinned, not the whole character posed without the stages."""
+    alone = load_gltf_scene(write_character(tmp_path / "alone.glb", ("torso",))).split_body()
+    body = load_gltf_scene(write_character(tmp_path / "capped.glb", ("torso", "cap")))\
+        .split_body()
+    parts = {p.name: p for p in body.parts}
+    assert parts["torso"].gets == "solved" and parts["cap"].gets == "skinned"
+    assert parts["torso"].shape == ("closed (alone: joined with the parts it touches, surface "
+                                    "is non-manifold: 1 edges have more than two triangles)")
+    assert parts["cap"].shape.startswith("not a body part: surface is non-manifold")
+    np.testing.assert_array_equal(body.V, alone.V)
+    np.testing.assert_array_equal(body.F, alone.F)
+    assert len(body.passengers) == 8 and body.notes == []      # the cap's corners
+
+
+def test_shells_through_each_other_at_rest_are_not_solved(tmp_path):
+    """Closed plates that pass through each other at rest have no one skin
+    round their flesh: they ride along skinned, the torso beside them is solved."""
+    alone = load_gltf_scene(write_character(tmp_path / "alone.glb", ("torso",))).split_body()
+    body = load_gltf_scene(write_character(tmp_path / "armour.glb", ("torso", "armour")))\
+        .split_body()
+    parts = {p.name: p for p in body.parts}
+    assert parts["torso"].gets == "solved" and parts["armour"].gets == "skinned"
+    assert parts["armour"].shape == ("not a body part: its 2 shells pass through each other "
+                                     "at rest (20 intersecting triangle pairs)")
+    np.testing.assert_array_equal(body.V, alone.V)
+    assert len(body.passengers) == 16
 
 
 def test_no_closed_skinned_part_poses_everything_without_stages(tmp_path, monkeypatch):

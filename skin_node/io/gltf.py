@@ -1045,8 +1045,11 @@ class GltfScene:
         The body is the union of the skinned parts that form closed surfaces:
         parts that share vertex positions (a character split into meshes, or
         over two skins) are joined first, and a joined group that is closed,
-        manifold and outward facing, with at least ``min_share`` of the largest
-        such group's volume, is body. Every other part is a passenger
+        manifold and outward facing, whose shells (connected pieces) do not
+        pass through each other at rest, with at least ``min_share`` of the
+        largest such group's volume, is body. Of a group that is no such
+        surface joined, the largest part that is one alone is a candidate
+        alone. Every other part is a passenger
         (:mod:`skin_node.parts`): skinned ones by dual quaternions, rigid ones by
         their joint, static ones at rest. The body's vertices come first in the
         surface (merged over its parts, in the order of the file's vertices),
@@ -1063,13 +1066,29 @@ class GltfScene:
         for group in _touching(parts):
             V, F = (parts[group[0]].V, parts[group[0]].F) if len(group) == 1 else \
                 _join([parts[i] for i in group], J)[:2]
-            problem = surface_problem(V, F)
+            problem = _body_problem(V, F)
             for i in group:
                 others = [repr(parts[j].name) for j in group if j != i]
                 also = f" (joined with {', '.join(others)})" if others else ""
                 shape[i] = f"not a body part: {problem}{also}" if problem else f"closed{also}"
             if not problem:
                 candidates.append((group, mesh_volume(V, F)))
+            elif len(group) > 1:
+                # parts that touch but do not join into one surface (a robot's
+                # shell and the joint caps set into it, sharing a few vertex
+                # positions): the largest that is a surface on its own is a
+                # body part alone, the others ride along
+                alone = []
+                for i in group:
+                    own = _body_problem(parts[i].V, parts[i].F)
+                    if own is None:
+                        alone.append((mesh_volume(parts[i].V, parts[i].F), i))
+                    else:
+                        shape[i] += f"; alone, {own}"
+                if alone:
+                    vol, i = max(alone)
+                    shape[i] = (f"closed (alone: joined with the parts it touches, {problem})")
+                    candidates.append(([i], vol))
         largest = max((v for _, v in candidates), default=0.0)
         body = []
         for group, vol in candidates:
@@ -1179,6 +1198,34 @@ class GltfBody:
 
 def _shape(p: GltfPart) -> str:
     return "closed" if p.closed else f"open ({p.open_edges} edges with one triangle)"
+
+
+def _shells_crossing(V: np.ndarray, F: np.ndarray) -> str | None:
+    """What keeps a closed surface of several shells (connected pieces) from
+    being one body's skin: shells that pass through each other at rest, as a
+    robot's plates or a limb modelled stuck into the torso do (None: nothing).
+    The stages keep each part's skin out of the others' flesh; flesh that
+    overlaps at rest is contact everywhere (Mixamo's Y Bot solved whole: 0.2 s
+    a frame and nearly four times DQS's sharp folds)."""
+    n = len(V)
+    A = coo_matrix((np.ones(F.size), (F.ravel(), np.roll(F, 1, axis=1).ravel())), shape=(n, n))
+    shells, label = connected_components(A, directed=False)
+    if shells < 2:
+        return None
+    from ..kernels.intersect import SelfIntersections
+    P = SelfIntersections(V, F, 0.0).pairs(V)
+    tl = label[F[:, 0]]
+    crossing = int(np.count_nonzero(tl[P[:, 0]] != tl[P[:, 1]]))
+    if not crossing:
+        return None
+    return (f"its {shells} shells pass through each other at rest ({crossing} intersecting "
+            "triangle pairs)")
+
+
+def _body_problem(V: np.ndarray, F: np.ndarray) -> str | None:
+    """:func:`~skin_node.io.character_file.surface_problem`, else
+    :func:`_shells_crossing`."""
+    return surface_problem(V, F) or _shells_crossing(V, F)
 
 
 def _touching(parts: list) -> list:
