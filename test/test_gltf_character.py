@@ -101,6 +101,9 @@ def meshes(split: bool = False) -> dict:
            "armour": (-1, [0.0, 0.0, 0.0],
                       [(*box((-0.1, 1.2, 0.12), (0.1, 1.4, 0.16)), TRIANGLES),
                        (*box((-0.05, 1.3, 0.1), (0.05, 1.5, 0.18)), TRIANGLES)], 0),
+           # a closed belt through the torso's sides
+           "belt": (-1, [0.0, 0.0, 0.0],
+                    [(*box((-0.2, 1.1, -0.12), (0.2, 1.2, 0.12)), TRIANGLES)], 0),
            "teeth": (-1, [0.0, 0.0, 0.0],
                      [(*box((-0.02, 1.6, 0.11), (0.02, 1.61, 0.12)), TRIANGLES)], 0),
            "eye": (6, [0.03, 0.0, 0.05], [(*box((-0.01, -0.01, -0.01), (0.01, 0.01, 0.01)),
@@ -374,7 +377,8 @@ def test_parts_that_touch_but_do_not_join_leave_the_largest_solved(tmp_path):
 
 def test_shells_through_each_other_at_rest_are_not_solved(tmp_path):
     """Closed plates that pass through each other at rest have no one skin
-    round their flesh: they ride along skinned, the torso beside them is solved."""
+    round their flesh: they ride along skinned, the torso beside them is solved;
+    of two closed parts through each other, the larger is."""
     alone = load_gltf_scene(write_character(tmp_path / "alone.glb", ("torso",))).split_body()
     body = load_gltf_scene(write_character(tmp_path / "armour.glb", ("torso", "armour")))\
         .split_body()
@@ -384,6 +388,13 @@ def test_shells_through_each_other_at_rest_are_not_solved(tmp_path):
                                      "at rest (20 intersecting triangle pairs)")
     np.testing.assert_array_equal(body.V, alone.V)
     assert len(body.passengers) == 16
+    # a closed part through a larger one: the larger is the body
+    body = load_gltf_scene(write_character(tmp_path / "belt.glb", ("torso", "legs", "belt")))\
+        .split_body()
+    parts = {p.name: p for p in body.parts}
+    assert [parts[n].gets for n in ("torso", "legs", "belt")] == ["solved", "solved", "skinned"]
+    assert parts["belt"].shape == ("not a body part: passes through 'torso' at rest (68 "
+                                   "intersecting triangle pairs)")
 
 
 def test_no_closed_skinned_part_poses_everything_without_stages(tmp_path, monkeypatch):

@@ -1049,7 +1049,8 @@ class GltfScene:
         pass through each other at rest, with at least ``min_share`` of the
         largest such group's volume, is body. Of a group that is no such
         surface joined, the largest part that is one alone is a candidate
-        alone. Every other part is a passenger
+        alone; of candidates that pass through each other at rest, the larger
+        is body. Every other part is a passenger
         (:mod:`skin_node.parts`): skinned ones by dual quaternions, rigid ones by
         their joint, static ones at rest. The body's vertices come first in the
         surface (merged over its parts, in the order of the file's vertices),
@@ -1072,7 +1073,7 @@ class GltfScene:
                 also = f" (joined with {', '.join(others)})" if others else ""
                 shape[i] = f"not a body part: {problem}{also}" if problem else f"closed{also}"
             if not problem:
-                candidates.append((group, mesh_volume(V, F)))
+                candidates.append((group, mesh_volume(V, F), V, F))
             elif len(group) > 1:
                 # parts that touch but do not join into one surface (a robot's
                 # shell and the joint caps set into it, sharing a few vertex
@@ -1088,16 +1089,29 @@ class GltfScene:
                 if alone:
                     vol, i = max(alone)
                     shape[i] = (f"closed (alone: joined with the parts it touches, {problem})")
-                    candidates.append(([i], vol))
-        largest = max((v for _, v in candidates), default=0.0)
-        body = []
-        for group, vol in candidates:
+                    candidates.append(([i], vol, parts[i].V, parts[i].F))
+        largest = max((c[1] for c in candidates), default=0.0)
+        kept = []
+        for group, vol, V, F in candidates:
             if vol >= min_share * largest:
-                body += group
+                kept.append((group, vol, V, F))
                 continue
             for i in group:
                 shape[i] = (f"closed but tiny ({vol / largest:.2%} of the largest closed "
                             f"part's volume, under {min_share:.0%})")
+        # closed parts that pass through each other at rest (a shirt's hem
+        # over the trousers, a helmet set into the head): the larger is body
+        kept.sort(key=lambda c: -c[1])
+        body = []
+        for k, crossed in enumerate(_crossed_by_larger([(V, F) for _, _, V, F in kept])):
+            group = kept[k][0]
+            if crossed is None:
+                body += group
+                continue
+            names = ", ".join(repr(parts[i].name) for i in kept[crossed[0]][0])
+            for i in group:
+                shape[i] = (f"not a body part: passes through {names} at rest ({crossed[1]} "
+                            "intersecting triangle pairs)")
         body.sort()
         skel = self.skeleton
         if body:
@@ -1220,6 +1234,29 @@ def _shells_crossing(V: np.ndarray, F: np.ndarray) -> str | None:
         return None
     return (f"its {shells} shells pass through each other at rest ({crossing} intersecting "
             "triangle pairs)")
+
+
+def _crossed_by_larger(surfaces: list) -> list:
+    """For each closed surface ``(V, F)`` of ``surfaces`` (largest first):
+    None if it passes through none of the larger ones kept, else ``(k, n)``,
+    the first such ``surfaces[k]`` and their intersecting triangle pairs at
+    rest. A surface crossed is not kept, so what it crosses counts no more."""
+    out = [None] * len(surfaces)
+    if len(surfaces) < 2:
+        return out
+    from ..kernels.intersect import SelfIntersections
+    off = np.cumsum([0] + [len(V) for V, _ in surfaces])
+    V = np.concatenate([V for V, _ in surfaces])
+    F = np.concatenate([F + o for (_, F), o in zip(surfaces, off)])
+    owner = np.repeat(np.arange(len(surfaces)), [len(f) for _, f in surfaces])
+    P = owner[SelfIntersections(V, F, 0.0).pairs(V)]
+    P = np.sort(P[P[:, 0] != P[:, 1]], axis=1)          # (larger, smaller) surfaces
+    for k in range(1, len(surfaces)):
+        hit = P[(P[:, 1] == k) & np.array([out[a] is None for a in P[:, 0]], dtype=bool)]
+        if len(hit):
+            first = int(hit[:, 0].min())
+            out[k] = (first, int(np.count_nonzero(hit[:, 0] == first)))
+    return out
 
 
 def _body_problem(V: np.ndarray, F: np.ndarray) -> str | None:
