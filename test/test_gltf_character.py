@@ -101,6 +101,10 @@ def meshes(split: bool = False) -> dict:
            "armour": (-1, [0.0, 0.0, 0.0],
                       [(*box((-0.1, 1.2, 0.12), (0.1, 1.4, 0.16)), TRIANGLES),
                        (*box((-0.05, 1.3, 0.1), (0.05, 1.5, 0.18)), TRIANGLES)], 0),
+           # a robot's rigid pieces beside the torso, each wholly on one joint
+           "pieces": (-1, [0.0, 0.0, 0.0],
+                      [(*box((0.3, 1.2, -0.05), (0.4, 1.4, 0.05)), TRIANGLES),
+                       (*box((0.3, 1.5, -0.05), (0.4, 1.7, 0.05)), TRIANGLES)], 0),
            # a closed belt through the torso's sides
            "belt": (-1, [0.0, 0.0, 0.0],
                     [(*box((-0.2, 1.1, -0.12), (0.2, 1.2, 0.12)), TRIANGLES)], 0),
@@ -146,12 +150,14 @@ def write_character(path: Path, names=ALL, split: bool = False) -> Path:
         if name not in names:
             continue
         out = []
-        for V, F, mode in prims:
+        for k, (V, F, mode) in enumerate(prims):
             Vf = V if skin is None else (np.c_[V, np.ones(len(V))] @ A_inv.T)[:, :3]
             at = {"POSITION": add(Vf, "VEC3", 5126, np.float32)}
             if skin is not None:
                 at["JOINTS_0"] = add(np.tile([0, 1, 2, 0], (len(V), 1)), "VEC4", 5123, np.uint16)
-                at["WEIGHTS_0"] = add(weights(V, skin), "VEC4", 5126, np.float32)
+                W = weights(V, skin) if name != "pieces" else \
+                    np.tile(np.eye(4)[1 + k], (len(V), 1))           # wholly on one joint
+                at["WEIGHTS_0"] = add(W, "VEC4", 5126, np.float32)
             idx = None if F is None else add(np.asarray(F).ravel(), "SCALAR", 5125, np.uint32)
             out.append(pygltflib.Primitive(attributes=pygltflib.Attributes(**at), indices=idx,
                                            mode=mode))
@@ -395,6 +401,17 @@ def test_shells_through_each_other_at_rest_are_not_solved(tmp_path):
     assert [parts[n].gets for n in ("torso", "legs", "belt")] == ["solved", "solved", "skinned"]
     assert parts["belt"].shape == ("not a body part: passes through 'torso' at rest (68 "
                                    "intersecting triangle pairs)")
+
+
+def test_rigid_pieces_are_not_solved(tmp_path):
+    """Closed pieces each bound wholly to one joint (a robot's) have no skin
+    that bends: they ride along skinned beside the solved torso."""
+    body = load_gltf_scene(write_character(tmp_path / "pieces.glb", ("torso", "pieces")))\
+        .split_body()
+    parts = {p.name: p for p in body.parts}
+    assert parts["torso"].gets == "solved" and parts["pieces"].gets == "skinned"
+    assert parts["pieces"].shape == ("not a body part: rigid pieces: each of its 2 shells is "
+                                     "bound wholly to one joint (no skin bends)")
 
 
 def test_no_closed_skinned_part_poses_everything_without_stages(tmp_path, monkeypatch):

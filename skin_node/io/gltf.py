@@ -1046,7 +1046,8 @@ class GltfScene:
         parts that share vertex positions (a character split into meshes, or
         over two skins) are joined first, and a joined group that is closed,
         manifold and outward facing, whose shells (connected pieces) do not
-        pass through each other at rest, with at least ``min_share`` of the
+        pass through each other at rest and are not each bound wholly to one
+        joint (rigid pieces), with at least ``min_share`` of the
         largest such group's volume, is body. Of a group that is no such
         surface joined, the largest part that is one alone is a candidate
         alone; of candidates that pass through each other at rest, the larger
@@ -1065,12 +1066,13 @@ class GltfScene:
         shape = {i: _shape(p) for i, p in enumerate(parts)}
         candidates = []
         for group in _touching(parts):
-            V, F = (parts[group[0]].V, parts[group[0]].F) if len(group) == 1 else \
-                _join([parts[i] for i in group], J)[:2]
-            problem = _body_problem(V, F)
+            p0 = parts[group[0]]
+            V, F, _, Widx, Wval = (p0.V, p0.F, None, p0.Widx, p0.Wval) if len(group) == 1 else \
+                _join([parts[i] for i in group], J)[:5]
+            problem = _body_problem(V, F) or _rigid_pieces(F, Widx, Wval)
             for i in group:
-                others = [repr(parts[j].name) for j in group if j != i]
-                also = f" (joined with {', '.join(others)})" if others else ""
+                others = _names([parts[j].name for j in group if j != i])
+                also = f" (joined with {others})" if others else ""
                 shape[i] = f"not a body part: {problem}{also}" if problem else f"closed{also}"
             if not problem:
                 candidates.append((group, mesh_volume(V, F), V, F))
@@ -1081,7 +1083,8 @@ class GltfScene:
                 # body part alone, the others ride along
                 alone = []
                 for i in group:
-                    own = _body_problem(parts[i].V, parts[i].F)
+                    own = (_body_problem(parts[i].V, parts[i].F)
+                           or _rigid_pieces(parts[i].F, parts[i].Widx, parts[i].Wval))
                     if own is None:
                         alone.append((mesh_volume(parts[i].V, parts[i].F), i))
                     else:
@@ -1108,7 +1111,7 @@ class GltfScene:
             if crossed is None:
                 body += group
                 continue
-            names = ", ".join(repr(parts[i].name) for i in kept[crossed[0]][0])
+            names = _names([parts[i].name for i in kept[crossed[0]][0]])
             for i in group:
                 shape[i] = (f"not a body part: passes through {names} at rest ({crossed[1]} "
                             "intersecting triangle pairs)")
@@ -1214,6 +1217,13 @@ def _shape(p: GltfPart) -> str:
     return "closed" if p.closed else f"open ({p.open_edges} edges with one triangle)"
 
 
+def _names(names: list, most: int = 3) -> str:
+    """``'a', 'b', 'c' and 4 more``: a part's line stays a line when it is
+    joined with dozens (Khronos's BrainStem joins 41 meshes)."""
+    shown = ", ".join(repr(n) for n in names[:most])
+    return shown + (f" and {len(names) - most} more" if len(names) > most else "")
+
+
 def _shells_crossing(V: np.ndarray, F: np.ndarray) -> str | None:
     """What keeps a closed surface of several shells (connected pieces) from
     being one body's skin: shells that pass through each other at rest, as a
@@ -1221,9 +1231,7 @@ def _shells_crossing(V: np.ndarray, F: np.ndarray) -> str | None:
     The stages keep each part's skin out of the others' flesh; flesh that
     overlaps at rest is contact everywhere (Mixamo's Y Bot solved whole: 0.2 s
     a frame and nearly four times DQS's sharp folds)."""
-    n = len(V)
-    A = coo_matrix((np.ones(F.size), (F.ravel(), np.roll(F, 1, axis=1).ravel())), shape=(n, n))
-    shells, label = connected_components(A, directed=False)
+    shells, label = _shell_labels(F, len(V))
     if shells < 2:
         return None
     from ..kernels.intersect import SelfIntersections
@@ -1257,6 +1265,35 @@ def _crossed_by_larger(surfaces: list) -> list:
             first = int(hit[:, 0].min())
             out[k] = (first, int(np.count_nonzero(hit[:, 0] == first)))
     return out
+
+
+def _shell_labels(F: np.ndarray, n: int):
+    """``(shells, label)``: the connected pieces of the triangles ``F`` over
+    ``n`` vertices and each vertex's piece."""
+    A = coo_matrix((np.ones(F.size), (F.ravel(), np.roll(F, 1, axis=1).ravel())), shape=(n, n))
+    return connected_components(A, directed=False)
+
+
+#: A vertex with at least this weight on one joint is bound wholly to it.
+_WHOLLY = 0.999
+
+
+def _rigid_pieces(F: np.ndarray, Widx: np.ndarray, Wval: np.ndarray) -> str | None:
+    """What makes a closed skinned surface no body: each of its shells bound
+    wholly to one joint, a robot's rigid pieces (Khronos's BrainStem). No
+    joint bends skin there, so no stage has anything to correct; solved, the
+    contact and volume stages bent the pieces (BrainStem on its own weights:
+    27 sharp folds against DQS's 0, volume 0.66). None when any vertex blends
+    joints or any shell spans two."""
+    if Wval is None or not len(Wval) or Wval.max(axis=1).min() < _WHOLLY:
+        return None
+    shells, label = _shell_labels(F, len(Wval))
+    top = Widx[np.arange(len(Widx)), Wval.argmax(axis=1)]
+    joints = {(int(a), int(b)) for a, b in zip(label, top)}
+    if len(joints) != shells:
+        return None
+    return (f"rigid pieces: each of its {shells} shell{'s' if shells > 1 else ''} is bound "
+            "wholly to one joint (no skin bends)")
 
 
 def _body_problem(V: np.ndarray, F: np.ndarray) -> str | None:
