@@ -160,6 +160,23 @@ def test_regions_follow_thresholds(arm):
     assert np.array_equal(joint_regions(arm.V, skel, r.threshold), r.region)
 
 
+def test_a_joint_detached_from_the_skin_has_no_region(sphere):
+    """A hand alone on a whole arm's skeleton (a robot whose hands alone are
+    skin): the elbow and the wrist lie outside, far from the skin, and take
+    none of it; the knuckle inside, and a joint set just outside its skin,
+    keep theirs."""
+    V, F, _ = sphere
+    R = SPHERE_R
+    P = [[-12 * R, 0, 0], [-8 * R, 0, 0], [-4 * R, 0, 0], [0.5 * R, 0, 0], [1.1 * R, 0, 0]]
+    sk = Skeleton(["shoulder", "elbow", "wrist", "knuckle", "nail"], [-1, 0, 1, 2, 3], P,
+                  tips=[[np.nan] * 3] * 4 + [[1.5 * R, 0, 0]])
+    rig = build.build_rig(V, F, sk, build.RigOptions(tet_count=500))
+    counts = np.bincount(rig.region + 1, minlength=6)[1:]
+    assert counts[1] == counts[2] == 0                  # elbow, wrist: outside and far
+    assert counts[3] > 0 and counts[4] > 0              # knuckle inside, nail 0.1 R outside
+    assert rig.threshold[1] == rig.threshold[2] == 0.0
+
+
 def test_inverse_distance_weights_paper_counts():
     """Without the tree restriction: 3 bones in a joint region, 2 elsewhere, (1/d)^4."""
     sk = Skeleton(["a", "b", "c", "d"], [-1, 0, 1, 2],

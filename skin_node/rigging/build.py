@@ -15,13 +15,14 @@ from typing import NamedTuple
 
 from ..metrics import mesh_volume
 from ..skeleton import Skeleton
+from .embed import winding_numbers
 from .fields import lattice_sampler, part_fields
 from .heat import bone_heat, continuous_top_k, dense_weights, lattice_extension
 from .tetra import lattice_for_count, signed_volumes, tet_edges
 from .weights import (bone_distances, inverse_distance_weights, joint_radii, joint_regions,
                       point_segment_distance)
 
-RIG_VERSION = 10
+RIG_VERSION = 11
 
 
 @dataclass
@@ -291,6 +292,16 @@ def build_rig(V: np.ndarray, F: np.ndarray, skel: Skeleton, opt: RigOptions,
 
     radius = joint_radii(V, skel)
     threshold = opt.region_scale * radius
+    # a joint outside the body, further from its skin than half the bone that
+    # leads to it, has no skin round it, so no region: an elbow or a hip where
+    # only a robot's hands are skin (its radius, the distance to the nearest
+    # skin, reached into a hand, and the hands' volume stage chased regions of
+    # no volume: Three.js's RobotExpressive walking, 311 intersecting pairs
+    # against DQS's 0). A joint an artist set just outside the skin keeps its.
+    P = skel.rest_positions
+    lead = np.array([np.linalg.norm(P[j] - P[p]) if p >= 0 else 0.0
+                     for j, p in enumerate(skel.parents)])
+    threshold[(winding_numbers(P, V, F) < 0.5) & (radius > 0.5 * lead)] = 0.0
     D, _ = bone_distances(V, skel)
     region = joint_regions(V, skel, threshold)
     TD, _ = bone_distances(TV, skel)
