@@ -84,6 +84,8 @@ def test_bad_files_name_the_file_and_the_problem(tmp_path, doc, message):
     ("open", "surface is open"),
     ("empty", "cannot be read as a mesh|holds no triangles"),
     ("missing", "mesh file does not exist"),
+    ("crossing", r"its 2 shells pass through each other at rest \(\d+ intersecting triangle "
+                 "pairs\): the deformer needs one skin"),
 ])
 def test_a_bad_mesh_names_the_mesh_file_and_the_yaml(tmp_path, mesh, message):
     """The mesh file is the one to fix: its path comes first, then the YAML's."""
@@ -94,6 +96,11 @@ def test_a_bad_mesh_names_the_mesh_file_and_the_yaml(tmp_path, mesh, message):
         trimesh.Trimesh(m.vertices, m.faces[:-1], process=False).export(obj)
     elif mesh == "empty":
         obj.write_text("# nothing\n")
+    elif mesh == "crossing":        # two closed boxes through each other: no one skin
+        a, b = trimesh.creation.box(), trimesh.creation.box()
+        b.apply_translation([0.5, 0.2, 0.1])
+        trimesh.Trimesh(np.vstack([a.vertices, b.vertices]),
+                        np.vstack([a.faces, b.faces + len(a.vertices)]), process=False).export(obj)
     path = write(tmp_path / "c.yaml", {"mesh": "meshes/body.obj", "joints": JOINTS})
     with pytest.raises(ValueError) as e:
         load_character(str(path), progress=False, cache=False)

@@ -123,7 +123,8 @@ from ..metrics import mesh_volume
 from ..parts import Part, Passengers
 from ..retarget import continuous_euler
 from ..skeleton import Skeleton, matrix_to_euler_xyz
-from .character_file import CharacterFileError, check_surface, surface_problem
+from .character_file import (CharacterFileError, check_surface, crossing_shells,
+                             shell_labels, surface_problem)
 
 #: glTF world (y up) to the project's world (z up): +90 degrees about x.
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -1224,26 +1225,6 @@ def _names(names: list, most: int = 3) -> str:
     return shown + (f" and {len(names) - most} more" if len(names) > most else "")
 
 
-def _shells_crossing(V: np.ndarray, F: np.ndarray) -> str | None:
-    """What keeps a closed surface of several shells (connected pieces) from
-    being one body's skin: shells that pass through each other at rest, as a
-    robot's plates or a limb modelled stuck into the torso do (None: nothing).
-    The stages keep each part's skin out of the others' flesh; flesh that
-    overlaps at rest is contact everywhere (Mixamo's Y Bot solved whole: 0.2 s
-    a frame and nearly four times DQS's sharp folds)."""
-    shells, label = _shell_labels(F, len(V))
-    if shells < 2:
-        return None
-    from ..kernels.intersect import SelfIntersections
-    P = SelfIntersections(V, F, 0.0).pairs(V)
-    tl = label[F[:, 0]]
-    crossing = int(np.count_nonzero(tl[P[:, 0]] != tl[P[:, 1]]))
-    if not crossing:
-        return None
-    return (f"its {shells} shells pass through each other at rest ({crossing} intersecting "
-            "triangle pairs)")
-
-
 def _crossed_by_larger(surfaces: list) -> list:
     """For each closed surface ``(V, F)`` of ``surfaces`` (largest first):
     None if it passes through none of the larger ones kept, else ``(k, n)``,
@@ -1267,13 +1248,6 @@ def _crossed_by_larger(surfaces: list) -> list:
     return out
 
 
-def _shell_labels(F: np.ndarray, n: int):
-    """``(shells, label)``: the connected pieces of the triangles ``F`` over
-    ``n`` vertices and each vertex's piece."""
-    A = coo_matrix((np.ones(F.size), (F.ravel(), np.roll(F, 1, axis=1).ravel())), shape=(n, n))
-    return connected_components(A, directed=False)
-
-
 #: A vertex with at least this weight on one joint is bound wholly to it.
 _WHOLLY = 0.999
 
@@ -1287,7 +1261,7 @@ def _rigid_pieces(F: np.ndarray, Widx: np.ndarray, Wval: np.ndarray) -> str | No
     joints or any shell spans two."""
     if Wval is None or not len(Wval) or Wval.max(axis=1).min() < _WHOLLY:
         return None
-    shells, label = _shell_labels(F, len(Wval))
+    shells, label = shell_labels(F, len(Wval))
     top = Widx[np.arange(len(Widx)), Wval.argmax(axis=1)]
     joints = {(int(a), int(b)) for a, b in zip(label, top)}
     if len(joints) != shells:
@@ -1298,8 +1272,8 @@ def _rigid_pieces(F: np.ndarray, Widx: np.ndarray, Wval: np.ndarray) -> str | No
 
 def _body_problem(V: np.ndarray, F: np.ndarray) -> str | None:
     """:func:`~skin_node.io.character_file.surface_problem`, else
-    :func:`_shells_crossing`."""
-    return surface_problem(V, F) or _shells_crossing(V, F)
+    :func:`~skin_node.io.character_file.crossing_shells`."""
+    return surface_problem(V, F) or crossing_shells(V, F)
 
 
 def _touching(parts: list) -> list:
