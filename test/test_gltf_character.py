@@ -364,14 +364,19 @@ def test_a_split_character_is_solved_whole(tmp_path):
     assert len(split.F) == len(whole.F)
 
 
+def split(tmp_path, names: tuple):
+    """The body of a test character of the meshes ``names``, and its parts by name."""
+    body = load_gltf_scene(write_character(tmp_path / f"{'-'.join(names)}.glb", names))\
+        .split_body()
+    return body, {p.name: p for p in body.parts}
+
+
 def test_parts_that_touch_but_do_not_join_leave_the_largest_solved(tmp_path):
     """A cap set on the torso's edge (a robot's joint cap on its shell): joined
     they are not a surface; the torso, closed alone, is the body and the cap
     rides along skinned, not the whole character posed without the stages."""
-    alone = load_gltf_scene(write_character(tmp_path / "alone.glb", ("torso",))).split_body()
-    body = load_gltf_scene(write_character(tmp_path / "capped.glb", ("torso", "cap")))\
-        .split_body()
-    parts = {p.name: p for p in body.parts}
+    alone, _ = split(tmp_path, ("torso",))
+    body, parts = split(tmp_path, ("torso", "cap"))
     assert parts["torso"].gets == "solved" and parts["cap"].gets == "skinned"
     assert parts["torso"].shape == ("closed (alone: joined with the parts it touches, surface "
                                     "is non-manifold: 1 edges have more than two triangles)")
@@ -385,19 +390,15 @@ def test_shells_through_each_other_at_rest_are_not_solved(tmp_path):
     """Closed plates that pass through each other at rest have no one skin
     round their flesh: they ride along skinned, the torso beside them is solved;
     of two closed parts through each other, the larger is."""
-    alone = load_gltf_scene(write_character(tmp_path / "alone.glb", ("torso",))).split_body()
-    body = load_gltf_scene(write_character(tmp_path / "armour.glb", ("torso", "armour")))\
-        .split_body()
-    parts = {p.name: p for p in body.parts}
+    alone, _ = split(tmp_path, ("torso",))
+    body, parts = split(tmp_path, ("torso", "armour"))
     assert parts["torso"].gets == "solved" and parts["armour"].gets == "skinned"
     assert parts["armour"].shape == ("not a body part: its 2 shells pass through each other "
                                      "at rest (20 intersecting triangle pairs)")
     np.testing.assert_array_equal(body.V, alone.V)
     assert len(body.passengers) == 16
     # a closed part through a larger one: the larger is the body
-    body = load_gltf_scene(write_character(tmp_path / "belt.glb", ("torso", "legs", "belt")))\
-        .split_body()
-    parts = {p.name: p for p in body.parts}
+    body, parts = split(tmp_path, ("torso", "legs", "belt"))
     assert [parts[n].gets for n in ("torso", "legs", "belt")] == ["solved", "solved", "skinned"]
     assert parts["belt"].shape == ("not a body part: passes through 'torso' at rest (68 "
                                    "intersecting triangle pairs)")
@@ -406,9 +407,7 @@ def test_shells_through_each_other_at_rest_are_not_solved(tmp_path):
 def test_rigid_pieces_are_not_solved(tmp_path):
     """Closed pieces each bound wholly to one joint (a robot's) have no skin
     that bends: they ride along skinned beside the solved torso."""
-    body = load_gltf_scene(write_character(tmp_path / "pieces.glb", ("torso", "pieces")))\
-        .split_body()
-    parts = {p.name: p for p in body.parts}
+    _, parts = split(tmp_path, ("torso", "pieces"))
     assert parts["torso"].gets == "solved" and parts["pieces"].gets == "skinned"
     assert parts["pieces"].shape == ("not a body part: rigid pieces: each of its 2 shells is "
                                      "bound wholly to one joint (no skin bends)")
