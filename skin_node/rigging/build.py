@@ -35,7 +35,9 @@ class RigOptions:
         Target number of tets of the lattice (about; the cube size is fitted).
     region_scale : float
         A joint's region holds points closer to it than ``region_scale`` times
-        its local limb radius (the paper's per-joint threshold).
+        its local limb radius (the paper's per-joint threshold); a joint
+        outside the body, further from it than half the bone leading to it,
+        has none (:func:`build_rig`).
     zone_weight : float
         A tet vertex is in joint ``j``'s zone, simulated while ``j`` is bent,
         when it takes more than this weight both from bones below ``j`` and from
