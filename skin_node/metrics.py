@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 
 def mesh_volume(V: np.ndarray, F: np.ndarray) -> float:
@@ -40,6 +42,13 @@ def interior_edges(F: np.ndarray):
     same = np.all(k[1:] == k[:-1], axis=1)
     i = np.flatnonzero(same)
     return f[i], f[i + 1], k[i]
+
+
+def shells(F: np.ndarray, n: int):
+    """``(count, label)``: the connected pieces of the triangles ``F`` over
+    ``n`` vertices and each vertex's piece."""
+    A = coo_matrix((np.ones(F.size), (F.ravel(), np.roll(F, 1, axis=1).ravel())), shape=(n, n))
+    return connected_components(A, directed=False)
 
 
 def _unit_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:

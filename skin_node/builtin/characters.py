@@ -59,6 +59,7 @@ import numba
 import numpy as np
 import scipy.sparse as sp
 
+from skin_node.metrics import shells
 from skin_node.skeleton import Skeleton
 
 __all__ = ["make_arm", "make_humanoid", "BUILTIN_CHARACTERS", "DEFAULT_SURFACE_VERTICES"]
@@ -514,9 +515,7 @@ def _clean(V: np.ndarray, F: np.ndarray):
     F = F[np.unique(np.sort(F, axis=1), axis=0, return_index=True)[1]]
     n = len(V)
     # Largest connected component (marching cubes can emit specks).
-    A = sp.coo_matrix((np.ones(3 * len(F)), (F[:, [0, 1, 2]].ravel(), F[:, [1, 2, 0]].ravel())),
-                      shape=(n, n))
-    ncomp, lab = sp.csgraph.connected_components(A, directed=False)
+    ncomp, lab = shells(F, n)
     if ncomp > 1:
         big = np.argmax(np.bincount(lab[F[:, 0]], minlength=ncomp))
         F = F[lab[F[:, 0]] == big]

@@ -29,9 +29,8 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
+from ..metrics import shells
 from ..rigging.embed import fit_template, load_template
 from ..skeleton import Skeleton
 
@@ -151,13 +150,6 @@ def _mesh(path: Path, doc: dict):
     return V, F, None
 
 
-def shell_labels(F: np.ndarray, n: int):
-    """``(shells, label)``: the connected pieces of the triangles ``F`` over
-    ``n`` vertices and each vertex's piece."""
-    A = coo_matrix((np.ones(F.size), (F.ravel(), np.roll(F, 1, axis=1).ravel())), shape=(n, n))
-    return connected_components(A, directed=False)
-
-
 def crossing_shells(V: np.ndarray, F: np.ndarray) -> str | None:
     """What keeps a closed surface of several shells (connected pieces) from
     being one body's skin: shells that pass through each other at rest, as a
@@ -165,8 +157,8 @@ def crossing_shells(V: np.ndarray, F: np.ndarray) -> str | None:
     The stages keep each part's skin out of the others' flesh; flesh that
     overlaps at rest is contact everywhere (Mixamo's Y Bot solved whole: 0.2 s
     a frame and nearly four times DQS's sharp folds)."""
-    shells, label = shell_labels(F, len(V))
-    if shells < 2:
+    count, label = shells(F, len(V))
+    if count < 2:
         return None
     from ..kernels.intersect import SelfIntersections
     P = SelfIntersections(V, F, 0.0).pairs(V)
@@ -174,7 +166,7 @@ def crossing_shells(V: np.ndarray, F: np.ndarray) -> str | None:
     crossing = int(np.count_nonzero(tl[P[:, 0]] != tl[P[:, 1]]))
     if not crossing:
         return None
-    return (f"its {shells} shells pass through each other at rest ({crossing} intersecting "
+    return (f"its {count} shells pass through each other at rest ({crossing} intersecting "
             "triangle pairs)")
 
 

@@ -119,12 +119,11 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ..builtin.clips import Clip
-from ..metrics import mesh_volume
+from ..metrics import mesh_volume, shells
 from ..parts import Part, Passengers
 from ..retarget import continuous_euler
 from ..skeleton import Skeleton, matrix_to_euler_xyz
-from .character_file import (CharacterFileError, check_surface, crossing_shells,
-                             shell_labels, surface_problem)
+from .character_file import CharacterFileError, check_surface, crossing_shells, surface_problem
 
 #: glTF world (y up) to the project's world (z up): +90 degrees about x.
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -1261,12 +1260,12 @@ def _rigid_pieces(F: np.ndarray, Widx: np.ndarray, Wval: np.ndarray) -> str | No
     joints or any shell spans two."""
     if Wval is None or not len(Wval) or Wval.max(axis=1).min() < _WHOLLY:
         return None
-    shells, label = shell_labels(F, len(Wval))
+    count, label = shells(F, len(Wval))
     top = Widx[np.arange(len(Widx)), Wval.argmax(axis=1)]
     joints = {(int(a), int(b)) for a, b in zip(label, top)}
-    if len(joints) != shells:
+    if len(joints) != count:
         return None
-    return (f"rigid pieces: each of its {shells} shell{'s' if shells > 1 else ''} is bound "
+    return (f"rigid pieces: each of its {count} shell{'s' if count > 1 else ''} is bound "
             "wholly to one joint (no skin bends)")
 
 
