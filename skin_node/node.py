@@ -291,7 +291,7 @@ class SkinNode(Node):
             f"part{'s' if len(ch.parts) > 1 else ''} (vertices "
             + ", ".join(f"{n} {g}" for g, n in gets.items()) + "), "
             + (f"stages {stages}" if ch.rig is not None else
-               f"stages {stages} idle (no closed skinned part to solve)")
+               f"stages {stages} idle (no skinned part to solve)")
             + f", {workers} worker{'s' if workers > 1 else ''}"
             + (", correction carried (solved behind the answers)" if carried else "")
             + (f" (deform process{'es' if workers > 1 else ''} "

@@ -423,8 +423,9 @@ def test_no_closed_skinned_part_poses_everything_without_stages(tmp_path, monkey
     assert ch.rig is None and len(ch.V) == 0 and len(ch.F) == 0
     assert [p.gets for p in ch.parts] == ["skinned", "skinned", "rigid", "rigid", "static"]
     assert len(ch.surface_V) == sum(p.vertices for p in ch.parts) == ch.parts[0].vertices + 68
-    assert ch.notes[-1] == ("no closed skinned part: the whole character is posed without "
-                            "the pipeline's stages (skinned parts by dual quaternions)")
+    assert ch.notes[-1] == ("no skinned part to solve (each part's line says why): the whole "
+                            "character is posed without the pipeline's stages (skinned parts "
+                            "by dual quaternions)")
     pipe = Pipeline(ch)                                        # the default stages: none run
     q = load_gltf_scene(path).clip("pose", fps=10.0).frames[-1]
     X = pipe.deform(q)

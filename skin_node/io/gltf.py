@@ -1165,8 +1165,9 @@ class GltfScene:
         file_faces = np.concatenate([parts[i].file_F + o for i, o in zip(order, n_file)])
         notes = list(self.notes)
         if not body:
-            notes.append("no closed skinned part: the whole character is posed without the "
-                         "pipeline's stages (skinned parts by dual quaternions)")
+            notes.append("no skinned part to solve (each part's line says why): the whole "
+                         "character is posed without the pipeline's stages (skinned parts by "
+                         "dual quaternions)")
         return GltfBody(V=V, F=F, Widx=Widx, Wval=Wval, skeleton=skel, passengers=passengers,
                         parts=info, file_order=np.concatenate([rows[i] for i in order]),
                         file_faces=file_faces, notes=notes)
