@@ -1069,7 +1069,7 @@ class GltfScene:
             p0 = parts[group[0]]
             V, F, _, Widx, Wval = (p0.V, p0.F, None, p0.Widx, p0.Wval) if len(group) == 1 else \
                 _join([parts[i] for i in group], J)[:5]
-            problem = _body_problem(V, F) or _rigid_pieces(F, Widx, Wval)
+            problem = _body_problem(V, F, Widx, Wval)
             for i in group:
                 others = _names([parts[j].name for j in group if j != i])
                 also = f" (joined with {others})" if others else ""
@@ -1083,8 +1083,7 @@ class GltfScene:
                 # body part alone, the others ride along
                 alone = []
                 for i in group:
-                    own = (_body_problem(parts[i].V, parts[i].F)
-                           or _rigid_pieces(parts[i].F, parts[i].Widx, parts[i].Wval))
+                    own = _body_problem(parts[i].V, parts[i].F, parts[i].Widx, parts[i].Wval)
                     if own is None:
                         alone.append((mesh_volume(parts[i].V, parts[i].F), i))
                     else:
@@ -1240,9 +1239,11 @@ def _crossed_by_larger(surfaces: list) -> list:
     owner = np.repeat(np.arange(len(surfaces)), [len(f) for _, f in surfaces])
     P = owner[SelfIntersections(V, F, 0.0).pairs(V)]
     P = np.sort(P[P[:, 0] != P[:, 1]], axis=1)          # (larger, smaller) surfaces
+    kept = np.ones(len(surfaces), dtype=bool)
     for k in range(1, len(surfaces)):
-        hit = P[(P[:, 1] == k) & np.array([out[a] is None for a in P[:, 0]], dtype=bool)]
+        hit = P[(P[:, 1] == k) & kept[P[:, 0]]]
         if len(hit):
+            kept[k] = False
             first = int(hit[:, 0].min())
             out[k] = (first, int(np.count_nonzero(hit[:, 0] == first)))
     return out
@@ -1270,10 +1271,13 @@ def _rigid_pieces(F: np.ndarray, Widx: np.ndarray, Wval: np.ndarray) -> str | No
             "wholly to one joint (no skin bends)")
 
 
-def _body_problem(V: np.ndarray, F: np.ndarray) -> str | None:
-    """:func:`~skin_node.io.character_file.surface_problem`, else
-    :func:`~skin_node.io.character_file.crossing_shells`."""
-    return surface_problem(V, F) or crossing_shells(V, F)
+def _body_problem(V: np.ndarray, F: np.ndarray, Widx: np.ndarray,
+                  Wval: np.ndarray) -> str | None:
+    """What keeps a closed skinned surface (weights ``Widx, Wval``) from being
+    body: :func:`~skin_node.io.character_file.surface_problem`, else
+    :func:`~skin_node.io.character_file.crossing_shells`, else
+    :func:`_rigid_pieces` (None: nothing)."""
+    return surface_problem(V, F) or crossing_shells(V, F) or _rigid_pieces(F, Widx, Wval)
 
 
 def _touching(parts: list) -> list:
