@@ -5,7 +5,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from skin_node.kernels.intersect import SelfIntersections, triangles_intersect
+from skin_node.kernels.collision import fit_tree
+from skin_node.kernels.intersect import (SelfIntersections, crossing_pairs, node_parts,
+                                         triangles_intersect)
 
 
 def _exact_intersect(T1, T2) -> bool:
@@ -91,6 +93,43 @@ def test_pairs_nearer_than_apart_at_rest_count_as_crumpled():
     assert through > 0 and crumpled == 0
     # the same pairs, all nearer than a distance longer than the sphere
     assert SelfIntersections(V, F, apart=0.5)(X) == (0, through)
+
+
+def test_skipping_a_query_s_own_part_finds_the_same_pairs_in_the_same_order():
+    s = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
+    V, F = np.array(s.vertices), np.array(s.faces, dtype=np.int64)
+    # three parts (bands by height); the top part's cap pushed down through
+    # the others' skin
+    fpart = np.digitize(V[F].mean(axis=1)[:, 2], [-0.03, 0.03]).astype(np.int64)
+    X = V.copy()
+    X[V[:, 2] > 0.08, 2] -= 0.2
+    si = SelfIntersections(V, F, 0.0)
+    t = si.tree
+    fit_tree(X, t, si.fit, True)
+    npart = node_parts(t, si.tris, fpart)
+    assert (npart >= 0).any() and (npart == -1).any()   # both kinds of node
+    for k in range(len(npart)):                         # a node's part is its triangles'
+        if npart[k] >= 0:
+            leaves = [k]
+            under = []
+            while leaves:
+                n = leaves.pop()
+                if t.child[n, 0] >= 0:
+                    leaves += list(t.child[n])
+                else:
+                    under += list(si.tris[t.slot[t.first[n]:t.first[n] + t.count[n]]])
+            assert (fpart[under] == npart[k]).all()
+    inq = np.ones(len(F), dtype=np.bool_)
+    out = np.empty((4096, 2), dtype=np.int64)
+
+    def search(parts):
+        n = crossing_pairs(X, F, si.tris, inq, fpart, parts, t.roots, t.child, t.first,
+                           t.count, t.slot, si.tris, *si.fit[:4], out)
+        return out[:n].copy()
+
+    plain = search(np.full(len(npart), -1, dtype=np.int64))
+    assert len(plain) > 20 and (fpart[plain[:, 0]] != fpart[plain[:, 1]]).all()
+    np.testing.assert_array_equal(search(npart), plain)
 
 
 @pytest.mark.parametrize("bad", [np.nan, np.inf])

@@ -86,16 +86,19 @@ def meets_apart(X, F, i0, i1, i2, g):
 
 
 @nb.njit(cache=True, nogil=True)
-def crossing_pairs(X, F, query, inq, fpart, roots, child, first, count, slot, tris, lo, hi,
-                   tlo, thi, out):
+def crossing_pairs(X, F, query, inq, fpart, npart, roots, child, first, count, slot, tris,
+                   lo, hi, tlo, thi, out):
     """Pairs of triangles that intersect in ``X`` (exactly), one of them from
     ``query``, of two different parts (``fpart``) and sharing no corner, each
     once, found through a bounding-volume tree over all of them
     (:func:`~skin_node.kernels.collision.triangle_trees` over ``tris``,
     boxes fit to ``X``); ``inq[f]`` marks the query triangles (a pair of two
     is written from its lower one's side). Every triangle a query and its
-    own part: all intersecting pairs, lower first. Writes up to len(out)
-    pairs (face ids) into ``out``; returns how many there are."""
+    own part: all intersecting pairs, lower first. ``npart`` (one per tree
+    node, :func:`node_parts`): the one part of every triangle under a node
+    (-1: several), so a query skips its own part's subtrees without
+    changing what it finds or the order it finds it in. Writes up to
+    len(out) pairs (face ids) into ``out``; returns how many there are."""
     n = 0
     stack = np.empty(128, dtype=np.int64)
     for k in range(query.shape[0]):
@@ -116,7 +119,7 @@ def crossing_pairs(X, F, query, inq, fpart, roots, child, first, count, slot, tr
                 top -= 1
                 nd = stack[top]
                 if (lo[nd, 0] > bh0 or hi[nd, 0] < bl0 or lo[nd, 1] > bh1 or hi[nd, 1] < bl1
-                        or lo[nd, 2] > bh2 or hi[nd, 2] < bl2):
+                        or lo[nd, 2] > bh2 or hi[nd, 2] < bl2 or npart[nd] == fpart[f]):
                     continue
                 if child[nd, 0] >= 0:
                     stack[top], stack[top + 1] = child[nd, 0], child[nd, 1]
@@ -134,6 +137,26 @@ def crossing_pairs(X, F, query, inq, fpart, roots, child, first, count, slot, tr
                             out[n, 0], out[n, 1] = f, g
                         n += 1
     return n
+
+
+def node_parts(tree, tris: np.ndarray, fpart: np.ndarray) -> np.ndarray:
+    """(nodes,) int64: for every node of ``tree``
+    (:func:`~skin_node.kernels.collision.triangle_trees` over ``tris``) the
+    part (``fpart``, one per triangle) of all the triangles under it, -1
+    where they are of several (children come after their parent: filled
+    backwards)."""
+    child, first, count = tree.child, tree.first, tree.count
+    out = np.full(len(child), -1, dtype=np.int64)
+    tp = np.asarray(fpart, dtype=np.int64)[np.asarray(tris)[tree.slot]]
+    for nd in range(len(child) - 1, -1, -1):
+        a, b = child[nd]
+        if a < 0:
+            p = tp[first[nd]:first[nd] + count[nd]]
+            if len(p) and (p == p[0]).all():
+                out[nd] = p[0]
+        elif out[a] >= 0 and out[a] == out[b]:
+            out[nd] = out[a]
+    return out
 
 
 class SelfIntersections:
@@ -157,6 +180,7 @@ class SelfIntersections:
         self._every = np.ones(len(F), dtype=np.bool_)
         self.tree = triangle_trees(V0, self.F, self.tris, np.zeros(len(F), dtype=np.int64))
         self.fit = tree_fit(self.tree)
+        self._mixed = np.full(len(self.tree.child), -1, dtype=np.int64)   # no part skipped
         self.centre0 = V0[self.F].mean(axis=1)
         self.apart = float(apart)
         self._out = np.empty((4096, 2), dtype=np.int64)
@@ -168,7 +192,8 @@ class SelfIntersections:
         t = self.tree
         lo, hi, tlo, thi, _ = self.fit
         while True:
-            n = crossing_pairs(X, self.F, self.tris, self._every, self.tris, t.roots, t.child,
+            n = crossing_pairs(X, self.F, self.tris, self._every, self.tris, self._mixed,
+                               t.roots, t.child,
                                t.first, t.count, t.slot, self.tris, lo, hi, tlo, thi, self._out)
             if n <= len(self._out):
                 return self._out[:n].copy()

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from ..kernels.collision import fit_tree
-from ..kernels.intersect import SelfIntersections, crossing_pairs
+from ..kernels.intersect import SelfIntersections, crossing_pairs, node_parts
 from ..kernels.shape import bent_edges
 from ..kernels.smoothing import EVEN, laplacian_smooth, ring_layout, vertex_faces
 from ..kernels.untangle import push_apart
@@ -69,6 +69,10 @@ class CoarseCrossings:
         F = self.F
         # the tree over every triangle that the pair counts search too
         self._si = SelfIntersections(V, F, 0.0) if len(self.coarse) else None
+        # each tree node's one part (-1: several): a query skips its own
+        # part's subtrees (CesiumMan's walk: the search 2.6 -> 2.2 ms a
+        # frame; the same pairs, found in the same order)
+        self._npart = node_parts(self._si.tree, self._si.tris, self.fpart) if self._si else None
         self.inq = np.zeros(len(F), dtype=np.bool_)
         self._out = np.empty((1024, 2), dtype=np.int64)
 
@@ -89,7 +93,7 @@ class CoarseCrossings:
         fit_tree(X, t, si.fit, full)
         lo, hi, tlo, thi, _ = si.fit
         while True:
-            n = crossing_pairs(X, self.F, query, inq, self.fpart, t.roots, t.child,
+            n = crossing_pairs(X, self.F, query, inq, self.fpart, self._npart, t.roots, t.child,
                                t.first, t.count, t.slot, si.tris, lo, hi,
                                tlo, thi, self._out)
             if n <= len(self._out):
