@@ -125,6 +125,17 @@ PIPELINE_PARAMS = {
                               "contact or the inflation may stand out from its neighbours' "
                               "mean move, in mean edges (cuts spikes and creases a vertex "
                               "wide; 0 leaves the moves as they are)"),
+    # Half-way: the humanoid at 8k and 12k vertices, whose shoulders, elbows,
+    # knees and ankles (2.9 to 3.5 edges across a limb's radius) were coarse
+    # at 1, came out with the same measures at 0.5 over the built-in walk and
+    # squat and five CMU clips (the 12k's skin within 0.24 mm) and 7-27%
+    # faster; at 6k (1.7 to 2.7 edges) CMU's punch crossed skin without the
+    # coarse checks (33 pairs, 0 with them). See docs/design.md.
+    "coarse_below": ParamSpec(float, 0.5, 0.0, 1.0, "a part whose median vertex resolves its "
+                              "limb less than this (Character.resolved: 0 at 2 edges across "
+                              "the limb's radius, 1 at 3.5) is coarse: the untangle, the "
+                              "contact's easing and inflation's checks of bent edges and "
+                              "crossings run on its skin (0: on no part)"),
     "untangle_rounds": ParamSpec(int, 6, 0, 50, "rounds of pushing apart coarse skin's "
                                  "triangles that pass through another part's"),
     "untangle_gap": ParamSpec(float, 0.05, 0.0, 1.0, "how far in front of the other "
@@ -308,8 +319,8 @@ class Pipeline:
             if k not in PIPELINE_PARAMS:
                 raise ValueError(f"unknown parameter '{k}'; parameters are {list(PIPELINE_PARAMS)}")
             checked[k] = PIPELINE_PARAMS[k].check(k, v)
-        rebuild = "weight_scheme" in checked and checked["weight_scheme"] != \
-            self.params.get("weight_scheme")
+        rebuild = any(k in checked and checked[k] != self.params.get(k)
+                      for k in ("weight_scheme", "coarse_below"))
         self.params.update(checked)
         if rebuild and getattr(self, "stages", None):
             self.stages = self._build_stages()

@@ -290,6 +290,37 @@ def test_timings_and_presets(small_arm):
         assert pipe.timings["total"] >= max(pipe.timings[s] for s in pipe.stage_names)
 
 
+def test_a_part_is_coarse_when_its_median_vertex_resolves_its_limb_less_than_coarse_below():
+    from types import SimpleNamespace
+    from skin_node.stages.untangle import coarse_triangles
+    # three parts of two triangles each, their vertices' resolutions (median
+    # 0.2, 0.6 and 1.0; part 1's mean is under 0.5, its median is not)
+    part = np.repeat([0, 1, 2], 4)
+    resolved = np.array([0.2, 0.2, 0.9, 0.0, 0.6, 0.6, 0.0, 1.0, 1.0, 1.0, 0.0, 1.0])
+    F = np.array([[4 * p, 4 * p + 1, 4 * p + 2] for p in range(3)]
+                 + [[4 * p + 1, 4 * p + 3, 4 * p + 2] for p in range(3)])
+    ch = SimpleNamespace(F=F, resolved=resolved, rig=SimpleNamespace(part=part),
+                         skeleton=SimpleNamespace(n_joints=3))
+    coarse = lambda below: sorted(coarse_triangles(ch, below)[2].tolist())  # noqa: E731
+    assert coarse(0.5) == [0, 3]                 # part 0's two triangles
+    assert coarse(1.0) == [0, 1, 3, 4]           # parts 0 and 1
+    assert coarse(0.0) == []
+
+
+def test_coarse_below_rebuilds_the_stages_that_read_it(humanoid):
+    # the 8k humanoid's forearms and hands are coarse (1.7 to 2.9 edges
+    # across their radius); at 1 its shoulders, knees and ankles are too
+    pipe = Pipeline(humanoid)
+    untangle = lambda: pipe.stages[pipe.stage_names.index("untangle")]  # noqa: E731
+    half = len(untangle().coarse)
+    assert 0 < half < len(humanoid.F) // 4
+    pipe.set_params(coarse_below=1.0)
+    assert len(untangle().coarse) > 1.5 * half
+    pipe.set_params(coarse_below=0.0)
+    assert len(untangle().coarse) == 0 and not untangle()._cross
+    assert np.isfinite(pipe.deform(humanoid.pose(l_elbow_rz=2.0))).all()
+
+
 def test_pose_errors(small_arm):
     pipe = Pipeline(small_arm)
     with pytest.raises(ValueError, match="shape"):

@@ -129,7 +129,7 @@ class Contact(Stage):
         self._J = J
         # the pairs of coarse skin's triangles that share an edge (none on
         # the built-in characters)
-        F, _, coarse = coarse_triangles(character)
+        F, _, coarse = coarse_triangles(character, float(params["coarse_below"]))
         self._coarse = (F, *coarse_edges(F, coarse)) if len(coarse) else None
 
     def _reach(self) -> float:

@@ -264,7 +264,7 @@ class Inflate(Stage):
         self._near = np.empty(len(V))
         self._resolved = character.resolved
         self.V0 = V
-        self._cross = CoarseCrossings(character)
+        self._cross = CoarseCrossings(character, float(params["coarse_below"]))
         if self._cross:
             # the pairs of coarse skin's triangles that share an edge: those
             # of the coarse parts, and (COARSE_CORNERS) any with a coarse

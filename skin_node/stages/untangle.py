@@ -24,21 +24,21 @@ EASE_BEND = 45.0
 EASE_PASSES = 2
 
 
-def coarse_triangles(character):
+def coarse_triangles(character, below: float):
     """``(F, fpart, coarse)``: the triangles (int64), each one's part (that
     of two of its corners, else its first's) and the coarse ones, those of
-    the parts most of whose skin is coarse
-    (:attr:`~skin_node.Character.resolved` below 1: CesiumMan's, none of the
-    built-in characters')."""
+    the parts whose median vertex resolves its limb less than ``below``
+    (:attr:`~skin_node.Character.resolved`, the ``coarse_below`` parameter):
+    CesiumMan's, none of the built-in characters' at their default
+    resolutions."""
     F = np.ascontiguousarray(character.F, dtype=np.int64)
     part = character.rig.part
     p = part[F]
     fpart = np.ascontiguousarray(np.where(p[:, 1] == p[:, 2], p[:, 1], p[:, 0]))
-    # the coarse parts: most of their skin is (the humanoid's and the arm's
-    # have none; a few coarse vertices at a fine limb's knee or hand are the
-    # contact's to keep apart)
+    # the coarse parts: most of their skin is (a few coarse vertices at a
+    # fine limb's knee or hand are the contact's to keep apart)
     J = character.skeleton.n_joints
-    coarse = np.array([np.median(character.resolved[part == j]) < 1.0
+    coarse = np.array([np.median(character.resolved[part == j]) < below
                        if np.any(part == j) else False for j in range(J)])
     return F, fpart, np.flatnonzero(coarse[fpart])
 
@@ -58,14 +58,15 @@ class CoarseCrossings:
     triangle of another part.
 
     A triangle's part is that of two of its corners, else its first's; the
-    coarse parts are those most of whose skin is coarse
-    (:attr:`~skin_node.Character.resolved` below 1: CesiumMan's, none of the
-    built-in characters'), whose triangles :attr:`coarse` lists. Falsy when
-    there are none, and then it builds nothing."""
+    coarse parts are those whose median vertex resolves its limb less than
+    ``below`` (:func:`coarse_triangles`: CesiumMan's, none of the built-in
+    characters' at their default resolutions), whose triangles
+    :attr:`coarse` lists. Falsy when there are none, and then it builds
+    nothing."""
 
-    def __init__(self, character):
+    def __init__(self, character, below: float):
         V = character.V
-        self.F, self.fpart, self.coarse = coarse_triangles(character)
+        self.F, self.fpart, self.coarse = coarse_triangles(character, below)
         F = self.F
         # the tree over every triangle that the pair counts search too
         self._si = SelfIntersections(V, F, 0.0) if len(self.coarse) else None
@@ -117,12 +118,13 @@ class Untangle(Stage):
     are pushed apart.
 
     The contact moves vertices out of the other parts' flesh. On a coarse
-    mesh (:attr:`~skin_node.Character.resolved` below 1: CesiumMan's 40 mm
-    edges around 40 mm limbs) a triangle's edge can run through another
-    part's triangle while every vertex of both stays outside the other's
-    flesh, and where one side of a contact has no vertex there is nothing
-    for it to move. Here the triangles of coarse parts (most of whose skin
-    is coarse: none on the built-in characters) near a contact (a corner the
+    mesh (CesiumMan's 40 mm edges around 40 mm limbs) a triangle's edge can
+    run through another part's triangle while every vertex of both stays
+    outside the other's flesh, and where one side of a contact has no
+    vertex there is nothing for it to move. Here the triangles of coarse
+    parts (:func:`coarse_triangles`: a part's median vertex resolves its
+    limb less than ``coarse_below``; none on the built-in characters at
+    their default resolutions) near a contact (a corner the
     contact moved, or within ``untangle_reach`` mean edges of another
     part's flesh: :attr:`~skin_node.stages.base.Frame.clearance`) are
     tested exactly against every triangle of another part
@@ -154,7 +156,7 @@ class Untangle(Stage):
 
     def __init__(self, character, params):
         super().__init__(character, params)
-        self._cross = CoarseCrossings(character)
+        self._cross = CoarseCrossings(character, float(params["coarse_below"]))
         self.F, self.coarse = self._cross.F, self._cross.coarse
         self._edge = character.mean_edges
         if not self._cross:
