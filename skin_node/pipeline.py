@@ -125,12 +125,12 @@ PIPELINE_PARAMS = {
                               "contact or the inflation may stand out from its neighbours' "
                               "mean move, in mean edges (cuts spikes and creases a vertex "
                               "wide; 0 leaves the moves as they are)"),
-    # Half-way: the humanoid at 8k and 12k vertices, whose shoulders, and
+    # Half-way: the humanoid at 8k and 12k vertices, whose shoulders and
     # knees or forearms and feet (2.8 to 3.5 edges across a limb's radius)
-    # were coarse at 1 too, came out with the same measures at 0.5 over the built-in walk and
-    # squat and five CMU clips (the 12k's skin within 0.24 mm) and 7-27%
-    # faster; at 6k (1.7 to 2.7 edges) CMU's punch crossed skin without the
-    # coarse checks (33 pairs, 0 with them). See docs/design.md.
+    # were coarse at 1 too, came out with the same measures at 0.5 over the
+    # built-in walk and squat and five CMU clips (the 12k's skin within 0.24
+    # mm) and 7-27% faster; at 6k (1.7 to 2.7 edges) CMU's punch crossed skin
+    # without the coarse checks (33 pairs, 0 with them). See docs/design.md.
     "coarse_below": ParamSpec(float, 0.5, 0.0, 1.0, "a part whose median vertex resolves its "
                               "limb less than this (Character.resolved: 0 at 2 edges across "
                               "the limb's radius, 1 at 3.5) is coarse: the untangle, the "
