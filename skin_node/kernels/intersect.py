@@ -193,8 +193,8 @@ class SelfIntersections:
         lo, hi, tlo, thi, _ = self.fit
         while True:
             n = crossing_pairs(X, self.F, self.tris, self._every, self.tris, self._mixed,
-                               t.roots, t.child,
-                               t.first, t.count, t.slot, self.tris, lo, hi, tlo, thi, self._out)
+                               t.roots, t.child, t.first, t.count, t.slot, self.tris, lo, hi,
+                               tlo, thi, self._out)
             if n <= len(self._out):
                 return self._out[:n].copy()
             self._out = np.empty((2 * n, 2), dtype=np.int64)
