@@ -308,8 +308,8 @@ def test_a_part_is_coarse_when_its_median_vertex_resolves_its_limb_less_than_coa
 
 
 def test_coarse_below_rebuilds_the_stages_that_read_it(humanoid):
-    # the 8k humanoid's forearms and hands are coarse (1.7 to 2.9 edges
-    # across their radius); at 1 its shoulders, knees and ankles are too
+    # the 8k humanoid's forearms, hands and left foot are coarse; at 1 its
+    # shoulders, knees and right foot are too
     pipe = Pipeline(humanoid)
     untangle = lambda: pipe.stages[pipe.stage_names.index("untangle")]  # noqa: E731
     half = len(untangle().coarse)
