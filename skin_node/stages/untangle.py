@@ -177,15 +177,16 @@ class Untangle(Stage):
     limb is turned out (:meth:`_shift`): of two parts still crossing, the
     smaller (both, half each, within SHARE_SIZE of each other's size)
     turns, with the skin its bones carry, about the first joint up its
-    chain ``untangle_shift`` / MAX_TURN mean edges from where it crosses
+    chain ``untangle_shift`` / MAX_TURN limb radii from where it crosses
     (a hand: about the elbow), never above the limb's top (the shoulder,
     the hip) and never a limb's top part itself, away from the other part's
     triangles, by the least move that leaves no pair of the two and no new
     pair of anything, no skin moving further than ``untangle_shift`` of
-    its mean edges; where no such move parts them the limb stays. The
-    skeleton is not changed: the pose's bones stay where the mocap put
-    them, and the skin of that limb stands off them (the benchmark's bulge
-    sees it).
+    its limb radii (skin to bone at rest: a move in mean edges let
+    RiggedFigure's 100 mm-edged limbs swing 40 cm between two frames);
+    where no such move parts them the limb stays. The skeleton is not
+    changed: the pose's bones stay where the mocap put them, and the skin
+    of that limb stands off them (the benchmark's bulge sees it).
 
     The exact test is the one that counts the intersecting pairs
     :mod:`skin_node.bench` reports, so those counts do not grade this stage
@@ -220,8 +221,10 @@ class Untangle(Stage):
         J = sk.n_joints
         self._size = np.array([np.ptp(character.V[part == j], axis=0).max()
                                if np.any(part == j) else 0.0 for j in range(J)])
-        self._part_edge = np.array([np.median(self._edge[part == j])
-                                    if np.any(part == j) else 0.0 for j in range(J)])
+        # each part's limb radius (skin to bone at rest): the turn's unit
+        radius = character.nearest_segments[1][:, 0]
+        self._radius = np.array([np.median(radius[part == j])
+                                 if np.any(part == j) else 0.0 for j in range(J)])
         self._carry = {}
 
     def _query(self, fr: Frame) -> np.ndarray:
@@ -409,7 +412,7 @@ class Untangle(Stage):
             if movers:
                 groups.setdefault(movers, []).append(i)
         for movers, rows in sorted(groups.items(), key=lambda g: -len(g[1])):
-            span = limit * min(self._part_edge[j] for j, _ in movers)
+            span = limit * min(self._radius[j] for j, _ in movers)
             found = self._turns(X, fr.G, movers, P[rows], span)
             if found is None:
                 continue
