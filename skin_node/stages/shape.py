@@ -13,7 +13,7 @@ from ..kernels.shape import (bent_edges, cone_volume_gradient, enclosed_volume, 
 from ..kernels.smoothing import EVEN, gather_weights, laplacian_smooth, ring_layout
 from ..kernels.topology import ring_distance
 from .base import Frame, KeyedCache, Stage
-from .untangle import CoarseCrossings, coarse_edges
+from .untangle import CoarseCrossings, LimbTurn, coarse_edges
 
 
 def _union(verts: list, on: np.ndarray, n: int) -> np.ndarray:
@@ -160,6 +160,11 @@ FINAL_BEND = 60.0
 #: laid again the arm's elbow past 150 degrees crossed more (155-165
 #: degrees: 14, 80, 246 -> 22, 120, 266 intersecting pairs).
 RELAY_WHOLE = True
+#: Coarse skin: inflation's layers that moved skin within TURN_REACH mean
+#: edges of another part's flesh (the contact's clearance) are tested for
+#: crossings it made, and a limb they ran through another part is turned
+#: out (:class:`~skin_node.stages.untangle.LimbTurn`).
+TURN_REACH = 2.0
 #: Coarse skin: inflation's bent edges are checked (WITHHOLD_BEND,
 #: FINAL_BEND) on the coarse parts' triangles and on every triangle with a
 #: coarse corner (:attr:`~skin_node.Character.resolved` below 1) in a finer
@@ -274,6 +279,8 @@ class Inflate(Stage):
                 coarse = np.union1d(coarse, np.flatnonzero(
                     (character.resolved[F] < 1.0).any(axis=1)))
             self._efaces = coarse_edges(F, coarse)
+            self._turn = LimbTurn(character, self.weights, self._cross, params,
+                                  "inflate_turned")
 
     def __call__(self, fr: Frame) -> None:
         js = [j for j in np.flatnonzero(fr.bent) if len(self.verts[j])]
@@ -315,6 +322,15 @@ class Inflate(Stage):
             X[hit] = start[hit]
             if hit.any():
                 self._after_revert(fr, js, hit, free, start, near, ratios)
+            # a limb its layers ran through another part's (the hip swelled
+            # into a forearm the untangle had just cleared): turned out. Only
+            # skin near another part's flesh can have crossed into it
+            fr.counts["inflate_turned"] = 0
+            if float(self.params["untangle_shift"]) > 0.0:
+                moved = moved_rows(X, start)
+                if fr.clearance is not None:
+                    moved &= fr.clearance < TURN_REACH * self._edge
+                self._turn(X, self._cross.crossed(X, self._cross.near(moved)), fr)
             fr.counts["inflate_withheld"] = withheld
             fr.counts["inflate_reverted"] = int(hit.sum())
         fr.counts["inflate_relief_capped"] = capped

@@ -138,87 +138,46 @@ class CoarseCrossings:
             self.inq[query] = False
 
 
-class Untangle(Stage):
-    """Triangles of two parts that pass through each other, on coarse skin,
-    are pushed apart.
+class LimbTurn:
+    """A coarse limb that passes through another part turned out of it
+    about a joint up its chain, with the skin its bones carry.
 
-    The contact moves vertices out of the other parts' flesh. On a coarse
-    mesh (CesiumMan's 40 mm edges around 40 mm limbs) a triangle's edge can
-    run through another part's triangle while every vertex of both stays
-    outside the other's flesh, and where one side of a contact has no
-    vertex there is nothing for it to move. Here the triangles of coarse
-    parts (:func:`coarse_triangles`: a part's median vertex resolves its
-    limb less than ``coarse_below``; none on the built-in characters at
-    their default resolutions) near a contact (a corner the
-    contact moved, or within ``untangle_reach`` mean edges of another
-    part's flesh: :attr:`~skin_node.stages.base.Frame.clearance`) are
-    tested exactly against every triangle of another part
-    (:func:`~skin_node.kernels.intersect.crossing_pairs`), and the pairs that
-    meet are parted (:func:`~skin_node.kernels.untangle.push_apart`): each
-    triangle's corners behind the other's plane, by less than
-    ``untangle_depth`` mean edges, go to ``untangle_gap`` mean edges in
-    front of it, half the way each, and their unpushed neighbours go
-    ``untangle_spread`` of the way with them (a 40 mm triangle's corner
-    pushed alone crossed the triangles around it: CesiumMan's walk on
-    automatic weights, every 4th frame, 301 pairs alone, 180 with half), and
-    where a round bent an edge past ``EASE_BEND`` degrees the push at its
-    corners is smoothed, for up
-    to ``untangle_rounds`` rounds while pairs remain and each round leaves
-    fewer (a round that does not is taken back). Skin near no contact, or
-    fine, is not tested. The vertices it pushed join the frame's skin in
-    contact
-    (:attr:`~skin_node.stages.base.Frame.touched`), so inflation does not
-    swell them back through (the punch on automatic weights kept 1,089
-    pairs instead of 639).
+    Where two parts' skin still crosses after the stages that move vertices
+    (flesh through flesh that 40 mm triangles cannot show as a dent: the
+    retargeted walk drives CesiumMan's hand 20-37 mm into its hip, the
+    punch its two fists into each other), the smaller part turns (both,
+    half each, within SHARE_SIZE of each other's size) about the first
+    joint up its chain ``untangle_shift`` / MAX_TURN limb radii from where
+    it crosses (a hand: about the elbow), never above the limb's top (the
+    shoulder, the hip) and never a limb's top part itself, away from the
+    other part's triangles, by the least move that leaves no pair of the
+    two and no new pair of anything, no skin moving further than
+    ``untangle_shift`` of its limb radii (skin to bone at rest: a move in
+    mean edges let RiggedFigure's 100 mm-edged limbs swing 40 cm between
+    two frames); where no such move parts them the limb stays. The
+    skeleton is not changed: the pose's bones stay where the mocap put
+    them, and the skin of that limb stands off them (the benchmark's bulge
+    sees it). The untangle turns what its pushes leave, inflation what its
+    layers run through (see docs/design.md).
 
-    What the rounds leave is flesh through flesh the skin cannot show as a
-    dent at 40 mm edges: the retargeted walk drives CesiumMan's hand 20-37
-    mm into its hip, the punch its two fists into each other. There the
-    limb is turned out (:meth:`_shift`): of two parts still crossing, the
-    smaller (both, half each, within SHARE_SIZE of each other's size)
-    turns, with the skin its bones carry, about the first joint up its
-    chain ``untangle_shift`` / MAX_TURN limb radii from where it crosses
-    (a hand: about the elbow), never above the limb's top (the shoulder,
-    the hip) and never a limb's top part itself, away from the other part's
-    triangles, by the least move that leaves no pair of the two and no new
-    pair of anything, no skin moving further than ``untangle_shift`` of
-    its limb radii (skin to bone at rest: a move in mean edges let
-    RiggedFigure's 100 mm-edged limbs swing 40 cm between two frames);
-    where no such move parts them the limb stays. The skeleton is not
-    changed: the pose's bones stay where the mocap put them, and the skin
-    of that limb stands off them (the benchmark's bulge sees it).
-
-    The exact test is the one that counts the intersecting pairs
-    :mod:`skin_node.bench` reports, so those counts do not grade this stage
-    alone: sharp folds, roughness, the joints' volumes and the z-buffer
-    pictures do.
+    Parameters
+    ----------
+    character, weights : the character and the skin weights its pipeline uses.
+    cross : :class:`CoarseCrossings` whose triangles it tests.
+    params : the pipeline's live parameters (``untangle_shift``).
+    count : the frame's count of limbs turned.
     """
 
-    name = "untangle"
-
-    def __init__(self, character, params):
-        super().__init__(character, params)
-        self._cross = CoarseCrossings(character, float(params["coarse_below"]))
-        self.F, self.coarse = self._cross.F, self._cross.coarse
-        self._edge = character.mean_edges
-        if not self._cross:
-            return          # nothing coarse: the stage tests nothing
-        n, m = len(character.V), len(self.F)
-        self._inq = self._cross.inq
-        self._in2 = np.zeros(m, dtype=np.bool_)
-        self._vf_ptr, self._vf = vertex_faces(self.F, n)
-        self._ptr, self._adj = character.rig.adj_ptr, character.rig.adj
-        self._efaces = coarse_edges(self.F, self.coarse)
-        self._moved, self._hit = np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.bool_)
-        self._near = np.zeros(n, dtype=np.bool_)
-        self._disp, self._count = np.zeros((n, 3)), np.zeros(n, dtype=np.int64)
-        self._touched = np.empty(n, dtype=np.int64)
+    def __init__(self, character, weights, cross: CoarseCrossings, params: dict,
+                 count: str = "untangle_turned") -> None:
+        self.weights, self.params, self.count = weights, params, count
+        self._cross, self.F = cross, cross.F
         sk = character.skeleton
         self._parents, self._below = sk.parents, sk.subtree()
         self._kids = np.bincount(sk.parents[1:], minlength=sk.n_joints)
         part = character.rig.part
-        # each part's size at rest: the larger of two crossing parts stays
         J = sk.n_joints
+        # each part's size at rest: the larger of two crossing parts stays
         self._size = np.array([np.ptp(character.V[part == j], axis=0).max()
                                if np.any(part == j) else 0.0 for j in range(J)])
         # each part's limb radius (skin to bone at rest): the turn's unit
@@ -226,46 +185,8 @@ class Untangle(Stage):
         self._radius = np.array([np.median(radius[part == j])
                                  if np.any(part == j) else 0.0 for j in range(J)])
         self._carry = {}
-
-    def _query(self, fr: Frame) -> np.ndarray:
-        """The coarse triangles near a contact this frame."""
-        near = self._near
-        near[:] = False
-        if fr.clearance is not None:
-            near |= fr.clearance < float(self.params["untangle_reach"]) * self._edge
-        for t in fr.touched:
-            near[t] = True
-        return self._cross.near(near)
-
-    def _again(self, X: np.ndarray, P: np.ndarray, moved: np.ndarray) -> np.ndarray:
-        """The pairs after a push that moved vertices ``moved``: those of ``P``
-        with no corner among them stand; the triangles around them are
-        tested again (pairs with none of this frame's query dropped)."""
-        around = np.unique(np.concatenate(
-            [self._vf[self._vf_ptr[v]:self._vf_ptr[v + 1]] for v in moved]))
-        self._in2[around] = True
-        new = self._cross.pairs(X, around, self._in2, False)
-        stand = P[~(self._in2[P[:, 0]] | self._in2[P[:, 1]])]
-        self._in2[around] = False
-        new = new[self._inq[new[:, 0]] | self._inq[new[:, 1]]]
-        return np.concatenate([stand, new])
-
-    def _ease(self, X: np.ndarray, start: np.ndarray, moved: np.ndarray) -> np.ndarray:
-        """Where the round that moved ``moved`` left an edge bent by more than
-        EASE_BEND degrees since ``start``, the push at its corners smoothed;
-        returns every vertex the round moved, those included."""
-        self._moved[moved] = True
-        bent_edges(X, start, self.F, *self._efaces, self._moved, math.radians(EASE_BEND),
-                   self._hit)
-        self._moved[moved] = False
-        zone = np.flatnonzero(self._hit)
-        if not len(zone):
-            return moved
-        self._hit[zone] = False
-        ring, loc, lptr, lnbr = ring_layout(zone, self._ptr, self._adj)
-        laplacian_smooth(X, start, True, ring, loc, lptr, lnbr, EVEN, 0.5, EVEN, EASE_PASSES,
-                         np.empty((len(ring), 3)), np.empty((len(loc), 3)))
-        return np.union1d(moved, zone)
+        self._mask = np.zeros(len(character.V), dtype=np.bool_)
+        self._in2 = np.zeros(len(self.F), dtype=np.bool_)
 
     def _carried(self, j: int) -> tuple[np.ndarray, np.ndarray]:
         """The vertices bone ``j`` or a bone below it moves, and by how much
@@ -355,7 +276,7 @@ class Untangle(Stage):
         them, and ``X`` is as it was)."""
         F, fpart, J = self.F, self._cross.fpart, len(self._parents)
         verts = np.unique(np.concatenate([self._carried(k)[0] for k, *_ in turns]))
-        mask = self._near
+        mask = self._mask
         mask[:] = False
         mask[verts] = True
         query = np.flatnonzero(mask[F].any(axis=1))
@@ -397,10 +318,10 @@ class Untangle(Stage):
         finally:
             self._in2[query] = False
 
-    def _shift(self, X: np.ndarray, P: np.ndarray, fr: Frame) -> None:
-        """Coarse limbs that still pass through another part after the
-        rounds (pairs ``P``) turned out of it about a joint up their chain
-        (see the class docstring)."""
+    def __call__(self, X: np.ndarray, P: np.ndarray, fr: Frame) -> None:
+        """The limbs of crossing pairs ``P`` (coarse triangles, each with
+        another part's) turned out of the other part where a turn parts
+        them; ``X`` changes in place."""
         limit = float(self.params["untangle_shift"])
         if limit <= 0.0 or not len(P):
             return
@@ -419,15 +340,120 @@ class Untangle(Stage):
             keys = np.unique(ab[rows, 0] * J + ab[rows, 1])
             t = self._least_turn(X, found[1], keys, span)
             if t > 0.0:
-                fr.counts["untangle_shifted"] += 1
+                fr.counts[self.count] = fr.counts.get(self.count, 0) + 1
                 fr.touched.append(np.unique(self.F[P[rows]]))
+
+
+class Untangle(Stage):
+    """Triangles of two parts that pass through each other, on coarse skin,
+    are pushed apart.
+
+    The contact moves vertices out of the other parts' flesh. On a coarse
+    mesh (CesiumMan's 40 mm edges around 40 mm limbs) a triangle's edge can
+    run through another part's triangle while every vertex of both stays
+    outside the other's flesh, and where one side of a contact has no
+    vertex there is nothing for it to move. Here the triangles of coarse
+    parts (:func:`coarse_triangles`: a part's median vertex resolves its
+    limb less than ``coarse_below``; none on the built-in characters at
+    their default resolutions) near a contact (a corner the
+    contact moved, or within ``untangle_reach`` mean edges of another
+    part's flesh: :attr:`~skin_node.stages.base.Frame.clearance`) are
+    tested exactly against every triangle of another part
+    (:func:`~skin_node.kernels.intersect.crossing_pairs`), and the pairs that
+    meet are parted (:func:`~skin_node.kernels.untangle.push_apart`): each
+    triangle's corners behind the other's plane, by less than
+    ``untangle_depth`` mean edges, go to ``untangle_gap`` mean edges in
+    front of it, half the way each, and their unpushed neighbours go
+    ``untangle_spread`` of the way with them (a 40 mm triangle's corner
+    pushed alone crossed the triangles around it: CesiumMan's walk on
+    automatic weights, every 4th frame, 301 pairs alone, 180 with half), and
+    where a round bent an edge past ``EASE_BEND`` degrees the push at its
+    corners is smoothed, for up
+    to ``untangle_rounds`` rounds while pairs remain and each round leaves
+    fewer (a round that does not is taken back). Skin near no contact, or
+    fine, is not tested. The vertices it pushed join the frame's skin in
+    contact
+    (:attr:`~skin_node.stages.base.Frame.touched`), so inflation does not
+    swell them back through (the punch on automatic weights kept 1,089
+    pairs instead of 639).
+
+    What the rounds leave is flesh through flesh the skin cannot show as a
+    dent: there the limb is turned out of the other part
+    (:class:`LimbTurn`), where a turn parts them.
+
+    The exact test is the one that counts the intersecting pairs
+    :mod:`skin_node.bench` reports, so those counts do not grade this stage
+    alone: sharp folds, roughness, the joints' volumes and the z-buffer
+    pictures do.
+    """
+
+    name = "untangle"
+
+    def __init__(self, character, params):
+        super().__init__(character, params)
+        self._cross = CoarseCrossings(character, float(params["coarse_below"]))
+        self.F, self.coarse = self._cross.F, self._cross.coarse
+        self._edge = character.mean_edges
+        if not self._cross:
+            return          # nothing coarse: the stage tests nothing
+        n, m = len(character.V), len(self.F)
+        self._inq = self._cross.inq
+        self._in2 = np.zeros(m, dtype=np.bool_)
+        self._vf_ptr, self._vf = vertex_faces(self.F, n)
+        self._ptr, self._adj = character.rig.adj_ptr, character.rig.adj
+        self._efaces = coarse_edges(self.F, self.coarse)
+        self._moved, self._hit = np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.bool_)
+        self._near = np.zeros(n, dtype=np.bool_)
+        self._disp, self._count = np.zeros((n, 3)), np.zeros(n, dtype=np.int64)
+        self._touched = np.empty(n, dtype=np.int64)
+        self._turn = LimbTurn(character, self.weights, self._cross, params)
+
+    def _query(self, fr: Frame) -> np.ndarray:
+        """The coarse triangles near a contact this frame."""
+        near = self._near
+        near[:] = False
+        if fr.clearance is not None:
+            near |= fr.clearance < float(self.params["untangle_reach"]) * self._edge
+        for t in fr.touched:
+            near[t] = True
+        return self._cross.near(near)
+
+    def _again(self, X: np.ndarray, P: np.ndarray, moved: np.ndarray) -> np.ndarray:
+        """The pairs after a push that moved vertices ``moved``: those of ``P``
+        with no corner among them stand; the triangles around them are
+        tested again (pairs with none of this frame's query dropped)."""
+        around = np.unique(np.concatenate(
+            [self._vf[self._vf_ptr[v]:self._vf_ptr[v + 1]] for v in moved]))
+        self._in2[around] = True
+        new = self._cross.pairs(X, around, self._in2, False)
+        stand = P[~(self._in2[P[:, 0]] | self._in2[P[:, 1]])]
+        self._in2[around] = False
+        new = new[self._inq[new[:, 0]] | self._inq[new[:, 1]]]
+        return np.concatenate([stand, new])
+
+    def _ease(self, X: np.ndarray, start: np.ndarray, moved: np.ndarray) -> np.ndarray:
+        """Where the round that moved ``moved`` left an edge bent by more than
+        EASE_BEND degrees since ``start``, the push at its corners smoothed;
+        returns every vertex the round moved, those included."""
+        self._moved[moved] = True
+        bent_edges(X, start, self.F, *self._efaces, self._moved, math.radians(EASE_BEND),
+                   self._hit)
+        self._moved[moved] = False
+        zone = np.flatnonzero(self._hit)
+        if not len(zone):
+            return moved
+        self._hit[zone] = False
+        ring, loc, lptr, lnbr = ring_layout(zone, self._ptr, self._adj)
+        laplacian_smooth(X, start, True, ring, loc, lptr, lnbr, EVEN, 0.5, EVEN, EASE_PASSES,
+                         np.empty((len(ring), 3)), np.empty((len(loc), 3)))
+        return np.union1d(moved, zone)
 
     def __call__(self, fr: Frame) -> None:
         if not self._cross:
             return
         query = self._query(fr)
         fr.counts["untangle_pairs"] = fr.counts["untangle_moves"] = 0
-        fr.counts["untangle_spread"] = fr.counts["untangle_shifted"] = 0
+        fr.counts["untangle_spread"] = fr.counts["untangle_turned"] = 0
         if not len(query):
             return
         X = fr.surface
@@ -458,6 +484,6 @@ class Untangle(Stage):
             parted.append(self._touched[:pushed].copy())
             P = after
         self._inq[query] = False
-        self._shift(X, P, fr)
+        self._turn(X, P, fr)
         if parted:
             fr.touched.append(np.unique(np.concatenate(parted)))
