@@ -240,10 +240,11 @@ class LimbTurn:
         turns)``: ``d`` the way the first moves (out of the other side's
         triangles and away from its own: their outward normals' means,
         the one's minus the other's), and per mover ``(k, o, axis, per,
-        gain)``, turned about joint ``k`` at ``o`` by ``per`` radians for
-        each metre its crossing triangles' centre ``c`` moves along ``d``
-        (its share), the farthest skin it carries moving ``gain`` times as
-        far. None when one of them cannot turn."""
+        gain)``: turned about joint ``k`` at ``o`` by ``per`` radians for
+        each metre the two sides part (its crossing triangles' centre moves
+        its share of it, along ``d`` or against it), the farthest skin it
+        carries moving ``gain`` metres a metre. None when one of them
+        cannot turn."""
         F, fpart = self.F, self._cross.fpart
         mine = fpart[sel[:, 0]] == movers[0][0]
         sides = (np.where(mine, sel[:, 0], sel[:, 1]), np.where(mine, sel[:, 1], sel[:, 0]))
@@ -259,14 +260,14 @@ class LimbTurn:
             if k is None:
                 return None
             o = G[k, :3, 3]
-            axis = np.cross(c - o, share * d)
+            axis = np.cross(c - o, d)
             lever = np.linalg.norm(axis)        # |c - o| times the sine
             if lever < 1e-9:
                 return None                     # d runs along the limb
-            axis /= lever
+            axis *= math.copysign(1.0 / lever, share)
             v, w = self._carried(k)
             far = float((w[:, 0] * np.linalg.norm(np.cross(axis, X[v] - o), axis=1)).max())
-            turns.append((k, o, axis, abs(share) / lever, far / lever))
+            turns.append((k, o, axis, abs(share) / lever, abs(share) * far / lever))
         return d, turns
 
     def _least_turn(self, X: np.ndarray, turns: list, keys: np.ndarray, span: float) -> float:
