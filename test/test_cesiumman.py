@@ -455,6 +455,33 @@ def test_inflation_turns_a_limb_its_layers_ran_through_another_part(monkeypatch,
     assert vo >= vw - 0.001, (vo, vw)
 
 
+@pytest.mark.parametrize("weights", ["automatic", "file"])
+def test_limb_turns_never_cross_more_on_random_poses(characters, weights):
+    """Poses no clip has (half of CesiumMan's joints turned at random, each
+    channel up to 92 degrees, seeded): with the turns (``untangle_shift``)
+    no pose has more exact intersecting pairs than without them, the skin
+    stays finite, and the sharp folds summed are no more (measured over
+    these 30: 841 against 881 pairs, 138 and 138 folds on automatic
+    weights; 1,791 against 1,964 and 665 against 669 on the file's)."""
+    from skin_node.kernels.intersect import SelfIntersections
+    from skin_node.metrics import SurfaceQuality
+    ch = characters[weights]
+    sk = ch.skeleton
+    si, sq = SelfIntersections(ch.V, ch.F, 0.0), SurfaceQuality(ch.V, ch.F)
+    on, off = Pipeline(ch), Pipeline(ch, untangle_shift=0.0)
+    rng = np.random.default_rng(7)
+    folds = np.zeros(2, dtype=int)
+    for _ in range(30):
+        q = sk.rest_pose().copy()
+        n = len(q) - 3
+        q[3:] = rng.uniform(-1.6, 1.6, n) * (rng.random(n) < 0.5)
+        a, b = on.deform(q).copy(), off.deform(q).copy()
+        assert np.isfinite(a).all()
+        assert len(si.pairs(a)) <= len(si.pairs(b)), q
+        folds += (sq(a)["folds90"], sq(b)["folds90"])
+    assert folds[0] <= folds[1], folds
+
+
 def test_limb_ends_turn_about_a_joint_up_their_chain(characters):
     """Which limb turns, and about which joint (CesiumMan's skeleton): of a
     hand and a thigh the hand, about the elbow when the hand's crossing is

@@ -151,7 +151,7 @@ class LimbTurn:
     it crosses (a hand: about the elbow), never above the limb's top (the
     shoulder, the hip) and never a limb's top part itself, away from the
     other part's triangles, by the least move that leaves no pair of the
-    two and no new pair of anything, no skin moving further than
+    two and no new pair of anything, a turn moving no skin further than
     ``untangle_shift`` of its limb radii (skin to bone at rest: a move in
     mean edges let RiggedFigure's 100 mm-edged limbs swing 40 cm between
     two frames); where no such move parts them the limb stays. The
