@@ -236,15 +236,14 @@ class LimbTurn:
 
     def _turns(self, X: np.ndarray, G: np.ndarray, movers: tuple, sel: np.ndarray,
                span: float):
-        """How the ``movers`` of crossing pairs ``sel`` turn, as ``(d,
-        turns)``: ``d`` the way the first moves (out of the other side's
-        triangles and away from its own: their outward normals' means,
-        the one's minus the other's), and per mover ``(k, o, axis, per,
-        gain)``: turned about joint ``k`` at ``o`` by ``per`` radians for
-        each metre the two sides part (its crossing triangles' centre moves
-        its share of it, along ``d`` or against it), the farthest skin it
-        carries moving ``gain`` metres a metre. None when one of them
-        cannot turn."""
+        """How the ``movers`` of crossing pairs ``sel`` turn: per mover
+        ``(k, o, axis, per, gain)``, turned about joint ``k`` at ``o`` by
+        ``per`` radians for each metre the two sides part (its crossing
+        triangles' centre moves its share of it along ``d``, the way the
+        first moves: out of the other side's triangles and away from its
+        own, their outward normals' means the one's minus the other's; the
+        second the other way), the farthest skin it carries moving ``gain``
+        metres a metre. None when one of them cannot turn."""
         F, fpart = self.F, self._cross.fpart
         mine = fpart[sel[:, 0]] == movers[0][0]
         sides = (np.where(mine, sel[:, 0], sel[:, 1]), np.where(mine, sel[:, 1], sel[:, 0]))
@@ -268,7 +267,7 @@ class LimbTurn:
             v, w = self._carried(k)
             far = float((w[:, 0] * np.linalg.norm(np.cross(axis, X[v] - o), axis=1)).max())
             turns.append((k, o, axis, abs(share) / lever, abs(share) * far / lever))
-        return d, turns
+        return turns
 
     def _least_turn(self, X: np.ndarray, turns: list, keys: np.ndarray, span: float) -> float:
         """Turn ``turns`` by the least move that parts the pairs of the parts
@@ -335,11 +334,11 @@ class LimbTurn:
                 groups.setdefault(movers, []).append(i)
         for movers, rows in sorted(groups.items(), key=lambda g: -len(g[1])):
             span = limit * min(self._radius[j] for j, _ in movers)
-            found = self._turns(X, fr.G, movers, P[rows], span)
-            if found is None:
+            turns = self._turns(X, fr.G, movers, P[rows], span)
+            if turns is None:
                 continue
             keys = np.unique(ab[rows, 0] * J + ab[rows, 1])
-            t = self._least_turn(X, found[1], keys, span)
+            t = self._least_turn(X, turns, keys, span)
             if t > 0.0:
                 fr.counts[self.count] = fr.counts.get(self.count, 0) + 1
                 fr.touched.append(np.unique(self.F[P[rows]]))
