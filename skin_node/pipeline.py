@@ -148,10 +148,11 @@ PIPELINE_PARAMS = {
                                  "folds its edges)"),
     "untangle_reach": ParamSpec(float, 2.0, 0.0, 20.0, "coarse skin this near another part's "
                                 "flesh is tested, in mean edges"),
-    "untangle_shift": ParamSpec(float, 3.0, 0.0, 10.0, "the farthest skin moves when a "
-                                "coarse limb still passing through another part after the "
-                                "rounds is turned out of it about a joint up its chain, in "
-                                "the limb's radii (skin to bone at rest; 0: never)"),
+    "untangle_shift": ParamSpec(float, 3.0, 0.0, 10.0, "the farthest one turn moves skin "
+                                "when a coarse limb still passing through another part (after "
+                                "the untangle's rounds, or inflation) is turned out of it "
+                                "about a joint up its chain, in the limb's radii (skin to "
+                                "bone at rest; 0: never)"),
     "bulge_limit": ParamSpec(float, 0.1, 0.001, 2.0, "the most skin stands out from its bone "
                              "beyond its rest distance, in rest distances"),
     "bulge_smoothing": ParamSpec(int, 2, 0, 100, "Laplacian passes over the bulge limit's "
