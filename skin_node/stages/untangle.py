@@ -473,7 +473,11 @@ class Untangle(Stage):
                                        self._adj, self._disp, self._count, self._touched)
             if not moved:
                 break
-            after = self._again(X, P, self._ease(X, start, self._touched[:moved].copy()))
+            eased = self._ease(X, start, self._touched[:moved].copy())
+            after = self._again(X, P, eased)
+            if len(after) >= len(P):
+                X[:] = 0.5 * (before + X)
+                after = self._again(X, P, eased)
             if len(after) >= len(P):
                 # pushing made it no better (flesh through flesh: two hands
                 # pushed through each other crumpled): take the round back
