@@ -370,7 +370,8 @@ class Untangle(Stage):
     where a round bent an edge past ``EASE_BEND`` degrees the push at its
     corners is smoothed, for up
     to ``untangle_rounds`` rounds while pairs remain and each round leaves
-    fewer (a round that does not is taken back). Skin near no contact, or
+    fewer (a round that does not is tried again at half its move, then
+    taken back). Skin near no contact, or
     fine, is not tested. The vertices it pushed join the frame's skin in
     contact
     (:attr:`~skin_node.stages.base.Frame.touched`), so inflation does not
