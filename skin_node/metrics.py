@@ -51,7 +51,9 @@ def shells(F: np.ndarray, n: int):
     return connected_components(A, directed=False)
 
 
-def _unit_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+def unit_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(m, 3) unit normals of triangles ``F`` over vertices ``V`` (0 for a
+    degenerate one)."""
     n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
 
@@ -89,7 +91,7 @@ class SurfaceQuality:
         self.u0_mean, self.u0_p99 = float(u0.mean()), float(np.percentile(u0, 99))
 
     def _dihedral(self, V: np.ndarray) -> np.ndarray:
-        N = _unit_normals(V, self.F)
+        N = unit_normals(V, self.F)
         c = np.einsum("ij,ij->i", N[self.fa], N[self.fb])
         return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
 

@@ -11,7 +11,7 @@ from ..kernels.intersect import SelfIntersections, crossing_pairs, node_parts
 from ..kernels.shape import bent_edges
 from ..kernels.smoothing import EVEN, laplacian_smooth, ring_layout, vertex_faces
 from ..kernels.untangle import push_apart
-from ..metrics import interior_edges
+from ..metrics import interior_edges, unit_normals
 from .base import Frame, Stage
 
 #: Where a round of pushes bent an edge by more than EASE_BEND degrees since
@@ -40,13 +40,6 @@ def _turn(R: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
     c, s = math.cos(angle), math.sin(angle)
     return (R * c + np.cross(axis, R) * s
             + np.outer(R @ axis, axis) * (1.0 - c))
-
-
-def _mean_normal(X: np.ndarray, tris: np.ndarray) -> np.ndarray:
-    """The mean of triangles ``tris``' unit normals over surface ``X``."""
-    n = np.cross(X[tris[:, 1]] - X[tris[:, 0]], X[tris[:, 2]] - X[tris[:, 0]])
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-    return n.mean(axis=0)
 
 
 def coarse_triangles(character, below: float):
@@ -247,7 +240,8 @@ class LimbTurn:
         F, fpart = self.F, self._cross.fpart
         mine = fpart[sel[:, 0]] == movers[0][0]
         sides = (np.where(mine, sel[:, 0], sel[:, 1]), np.where(mine, sel[:, 1], sel[:, 0]))
-        d = _mean_normal(X, F[sides[1]]) - _mean_normal(X, F[sides[0]])
+        own, other = (unit_normals(X, F[t]).mean(axis=0) for t in sides)
+        d = other - own
         nd = np.linalg.norm(d)
         if nd < 1e-12:
             return None
