@@ -471,6 +471,9 @@ class Untangle(Stage):
             eased = self._ease(X, start, self._touched[:moved].copy())
             after = self._again(X, P, eased)
             if len(after) >= len(P):
+                # half the move first: the file-weighted CesiumMan's armpit
+                # went 46 -> 50 pairs at the full move, 50 -> 3 at the end
+                # of the stage with the half (docs/design.md)
                 X[:] = 0.5 * (before + X)
                 after = self._again(X, P, eased)
             if len(after) >= len(P):
