@@ -42,7 +42,7 @@ import numpy as np
 from .kernels.skinning import dqs_carry, dqs_offsets, matrices_to_dual_quaternions
 from .kernels.smoothing import ring_means
 from .kernels.threads import allow_concurrent_calls, check_concurrent_calls
-from .pipeline import DEFAULT_STAGES, Pipeline
+from .pipeline import DEFAULT_STAGES, Pipeline, skinning_stage
 
 #: Niceness of the solver (its thread, or its process): the answers, the
 #: executor and DDS come first. Through ROS on two cores (the squat at 120 Hz,
@@ -96,9 +96,9 @@ class AsyncPipeline:
 
     def __init__(self, character, stages=DEFAULT_STAGES, solver_pipeline=None, **params) -> None:
         stages = list(stages)
-        if stages[:1] != ["dqs"]:
-            raise ValueError(f"the correction rides on DQS: the first stage must be 'dqs', "
-                             f"got {stages[:1]}")
+        if skinning_stage(stages) != "dqs":
+            raise ValueError(f"the correction rides on DQS: the skinning stage must be 'dqs', "
+                             f"got {stages}")
         self.character = character
         # the pose, the passengers and the DQS the correction rides on
         self._front = Pipeline(character, ["dqs"], **params)
@@ -317,9 +317,9 @@ class AsyncPipeline:
         """A solver with ``stages`` and ``params`` in place of this one (once
         its solve under way is done), warmed up; returns the warm-up's seconds."""
         stages = list(stages)
-        if stages[:1] != ["dqs"]:
-            raise ValueError(f"the correction rides on DQS: the first stage must be 'dqs', "
-                             f"got {stages[:1]}")
+        if skinning_stage(stages) != "dqs":
+            raise ValueError(f"the correction rides on DQS: the skinning stage must be 'dqs', "
+                             f"got {stages}")
         self.wait()
         with self._cond:
             self._pending = None

@@ -369,10 +369,10 @@ class SkinNode(Node):
                      if "pipeline" in updates else None)
         except ValueError as e:
             return SetParametersResult(successful=False, reason=str(e))
-        if self._carried and stages[:1] != ("dqs",):
+        if self._carried and skin_node.pipeline.skinning_stage(stages) != "dqs":
             return SetParametersResult(successful=False, reason=(
-                f"correction:=carried rides on DQS: the first stage must be 'dqs', "
-                f"got {list(stages[:1])}"))
+                f"correction:=carried rides on DQS: the skinning stage must be 'dqs', "
+                f"got {list(stages)}"))
         if core.get("warm_start") and len(self._pipes) > 1:
             return SetParametersResult(successful=False, reason=(
                 f"warm_start needs workers:=1, not {len(self._pipes)}"))

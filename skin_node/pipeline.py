@@ -20,18 +20,20 @@ from .stages.pbd import PBD
 from .stages.shape import Bulge, Inflate
 from .stages.skinning import DQS, LBS
 from .stages.smooth import Smooth
+from .stages.turn import Turn
 from .stages.untangle import Untangle
 from .stages.volume import Volume
 
 STAGES = {s.name: s for s in (LBS, DQS, PBD, Bulge, Inflate, Contact, Mush, Untangle,
-                               Collision, Smooth, Volume)}
+                               Collision, Smooth, Volume, Turn)}
 STAGE_NAMES = tuple(STAGES)
 
-#: Our default: DQS start (no candy wrapper) with smooth weights, the bulge
-#: drawn in, skin kept out of other parts' flesh, coarse skin's triangles that
-#: still pass through another part's pushed apart, the volume given back, and
-#: the crease the contact leaves rounded with the rest skin's detail kept.
-DEFAULT_STAGES = ("dqs", "bulge", "contact", "untangle", "inflate", "mush")
+#: Our default: a limb the pose drives deep into another part turned out of
+#: it, DQS start (no candy wrapper) with smooth weights, the bulge drawn in,
+#: skin kept out of other parts' flesh, coarse skin's triangles that still
+#: pass through another part's pushed apart, the volume given back, and the
+#: crease the contact leaves rounded with the rest skin's detail kept.
+DEFAULT_STAGES = ("turn", "dqs", "bulge", "contact", "untangle", "inflate", "mush")
 
 #: Named stage lists with the parameters that make them what they are.
 PRESETS = {
@@ -153,6 +155,12 @@ PIPELINE_PARAMS = {
                                 "the untangle's rounds, or inflation) is turned out of it "
                                 "about a joint up its chain, in the limb's radii (skin to "
                                 "bone at rest; 0: never)"),
+    "turn_depth": ParamSpec(float, 0.5, 0.0, 10.0, "the turn stage turns a limb (a forearm, a "
+                            "hand, a shin, a foot) out of another part's flesh it lies deeper "
+                            "in than this, in the limb's radii (skin to bone at rest), until "
+                            "it lies no deeper (0: never)"),
+    "turn_shift": ParamSpec(float, 3.0, 0.0, 10.0, "the farthest the turn stage moves skin, "
+                            "in the turned limb's radii"),
     "bulge_limit": ParamSpec(float, 0.1, 0.001, 2.0, "the most skin stands out from its bone "
                              "beyond its rest distance, in rest distances"),
     "bulge_smoothing": ParamSpec(int, 2, 0, 100, "Laplacian passes over the bulge limit's "
@@ -261,6 +269,12 @@ PIPELINE_PARAMS = {
 }
 
 
+def skinning_stage(stages) -> str | None:
+    """The stage of ``stages`` that skins (after the stages on the pose), or
+    None."""
+    return next((s for s in stages if s in STAGES and STAGES[s].skinning), None)
+
+
 def default_params() -> dict:
     return {k: (list(s.default) if s.type is list else s.default)
             for k, s in PIPELINE_PARAMS.items()}
@@ -273,8 +287,8 @@ class Pipeline:
     ----------
     character : Character
     stages : sequence of str
-        Stage names from :data:`STAGE_NAMES`; the first must be a skinning stage
-        (``lbs`` or ``dqs``), and only the first.
+        Stage names from :data:`STAGE_NAMES`: stages on the pose (``turn``)
+        first, then one skinning stage (``lbs`` or ``dqs``), then the rest.
     **params
         Any of :data:`PIPELINE_PARAMS`.
 
@@ -291,10 +305,15 @@ class Pipeline:
         bad = [s for s in stages if s not in STAGES]
         if bad:
             raise ValueError(f"unknown stage(s) {bad}; stages are {list(STAGE_NAMES)}")
-        if not stages or not STAGES[stages[0]].skinning:
-            raise ValueError(f"the first stage must be 'lbs' or 'dqs', got {stages[:1]}")
-        if any(STAGES[s].skinning for s in stages[1:]):
-            raise ValueError(f"only the first stage may skin, got {stages}")
+        lead = 0
+        while lead < len(stages) and STAGES[stages[lead]].poses:
+            lead += 1
+        if lead == len(stages) or not STAGES[stages[lead]].skinning:
+            raise ValueError(f"the first stage must be 'lbs' or 'dqs' (after the stages on "
+                             f"the pose, {stages[:lead]}), got {stages[lead:lead + 1]}")
+        if any(STAGES[s].skinning or STAGES[s].poses for s in stages[lead + 1:]):
+            raise ValueError(f"only the first stage may skin, and the stages on the pose come "
+                             f"before it, got {stages}")
         self.character = character
         self.params = default_params()
         self.set_params(**params)
@@ -442,7 +461,7 @@ class Pipeline:
 
     def _tet_rows(self, fr: Frame) -> np.ndarray | None:
         """The tet-mesh vertices the stages after skinning use in ``fr``."""
-        need = [s.tet_vertices(fr) for s in self.stages[1:]]
+        need = [s.tet_vertices(fr) for s in self.stages if not (s.skinning or s.poses)]
         if any(n is None for n in need):
             return None
         need = [n for n in need if len(n)] or [np.zeros(0, dtype=np.int64)]

@@ -201,5 +201,6 @@ def test_the_solver_yields_the_cpu_to_the_answers(humanoid):
 
 
 def test_the_correction_must_ride_on_dqs(humanoid):
-    with pytest.raises(ValueError, match="first stage must be 'dqs'"):
-        AsyncPipeline(humanoid, ["lbs", "contact"])
+    for stages in (["lbs", "contact"], ["turn", "lbs", "contact"]):
+        with pytest.raises(ValueError, match="skinning stage must be 'dqs'"):
+            AsyncPipeline(humanoid, stages)

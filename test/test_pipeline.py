@@ -331,6 +331,16 @@ def test_pose_errors(small_arm):
         pipe.deform(q)
 
 
+def test_stage_order_errors(small_arm):
+    """Stages on the pose come before the one skinning stage, which comes
+    before the rest; a list that breaks that is refused, saying what it got."""
+    for bad in (["turn"], ["dqs", "turn"], ["turn", "bulge", "dqs"], ["turn", "dqs", "lbs"],
+                ["bulge", "dqs"]):
+        with pytest.raises(ValueError, match="first stage must be 'lbs' or 'dqs'|only the first stage may skin"):
+            Pipeline(small_arm, bad)
+    assert Pipeline(small_arm, ["turn", "lbs", "bulge"]).stage_names == ["turn", "lbs", "bulge"]
+
+
 def random_motion(skel, n: int, rng: np.random.Generator) -> np.ndarray:
     """Smooth random motion within the joint limits, with bursts of 90-degree
     jumps between consecutive frames."""

@@ -42,7 +42,7 @@ import numpy as np
 
 from . import charts
 from ..motion import GLTF_PREFIX, default_clip, file_animations, file_clip, load_motion
-from ..pipeline import STAGE_NAMES
+from ..pipeline import DEFAULT_STAGES, STAGE_NAMES
 from .carried import carried_table, run_carried
 from .export_memory import export_memory_line, run_export_memory
 from .measure import (Motion, Progress, clip_motion, expand_methods, expand_scenes,
@@ -346,20 +346,23 @@ def stage_table(runs: list, method: str = "default") -> str:
 # ------------------------------------------------------------------ ablation
 #: The default pipeline with one part taken out, cut down or added: (name, the
 #: pipeline's JSON spec over the default preset, what).
+def _without(stage: str) -> list:
+    return [s for s in DEFAULT_STAGES if s != stage]
+
+
 ABLATIONS = (
-    ("no-contact", {"stages": ["dqs", "bulge", "untangle", "inflate", "mush"]},
-     "no contact stage"),
+    ("no-turn", {"params": {"turn_depth": 0.0}},
+     "no limb turned out of another part before skinning (no change where none lies deep)"),
+    ("no-contact", {"stages": _without("contact")}, "no contact stage"),
     ("contact-unsmoothed", {"params": {"contact_rounds": 0}},
      "contact projected once, not smoothed"),
-    ("no-untangle", {"stages": ["dqs", "bulge", "contact", "inflate", "mush"]},
+    ("no-untangle", {"stages": _without("untangle")},
      "coarse skin's crossing triangles not pushed apart (no change without coarse parts)"),
-    ("no-mush", {"stages": ["dqs", "bulge", "contact", "untangle", "inflate"]},
-     "no mush of the crease"),
-    ("no-bulge", {"stages": ["dqs", "contact", "untangle", "inflate", "mush"]},
-     "no bulge limit"),
-    ("no-inflate", {"stages": ["dqs", "bulge", "contact", "untangle", "mush"]}, "no inflation"),
-    ("with-solve", {"stages": ["dqs", "pbd", "bulge", "contact", "untangle", "inflate",
-                               "mush"]},
+    ("no-mush", {"stages": _without("mush")}, "no mush of the crease"),
+    ("no-bulge", {"stages": _without("bulge")}, "no bulge limit"),
+    ("no-inflate", {"stages": _without("inflate")}, "no inflation"),
+    ("with-solve", {"stages": [t for s in DEFAULT_STAGES
+                               for t in ((s, "pbd") if s == "dqs" else (s,))]},
      "with the extended PBD solve over the tet mesh after stage 1"),
     ("paper-weights", {"params": {"weight_scheme": "inverse_distance"}},
      "the paper's inverse-distance weights"),

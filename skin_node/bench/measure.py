@@ -29,6 +29,9 @@ Timing
     the deformed vertex to the same segment, posed rigidly, minus ``r0`` (mm).
     Most negative = collapse (candy wrapper, elbow pinch), most positive =
     bulge. Skin pressed flat where two limbs touch also reads as negative.
+    The segments are the frame's: where the ``turn`` stage turned a limb out
+    of another part, its turned bones (how far it moved skin off the pose's
+    bones is the summary's ``turn_mm_max``).
 ``crossings``
     Joint-region vertices that have passed through the skin
     (:func:`skin_node.rigging.regions.count_crossings`).
@@ -84,7 +87,7 @@ import psutil
 from .. import default_clip_name, load_character, make_clip
 from ..kernels.intersect import SelfIntersections
 from ..metrics import SurfaceQuality, mesh_volume, region_volume, weight_jumps
-from ..pipeline import PRESETS, STAGE_NAMES, Pipeline
+from ..pipeline import PRESETS, STAGE_NAMES, Pipeline, skinning_stage
 from ..rigging.regions import RegionSearch, count_crossings
 from ..rigging.weights import point_segment_distance, segment_distance
 
@@ -528,7 +531,7 @@ def run_method(method: Method, scene: Scene, motion: Motion, reference: bool = T
         if method.simulates:
             for s in pipe.stages:           # from a fresh start, like the clip's
                 s.reset()
-            j = jitter(pipe, Pipeline(ch, method.stages[:1]), motion.dense)
+            j = jitter(pipe, Pipeline(ch, [skinning_stage(method.stages)]), motion.dense)
         else:
             j = np.zeros(1)
         res.summary["jitter_mm_p50"] = float(np.median(j))
@@ -583,6 +586,10 @@ def summarize(res: RunResult, times: dict, **extra) -> dict:
         "ref_mean_mm": float(np.nanmean(col("ref_mean_mm"))) if np.isfinite(col("ref_mean_mm")).any()
         else float("nan"),
         "ref_max_mm": most("ref_max_mm"),
+        # how far the turn stage moved skin off the bones the pose put it on
+        # (the bulge is measured from the turned bones), and on how many frames
+        "turn_mm_max": float(np.nanmax(np.nan_to_num(col("count_turn_mm")))) if rows else 0.0,
+        "turned_frames": int(np.count_nonzero(col("count_turned") > 0)),
     })
     return s
 

@@ -557,3 +557,37 @@ def boxed_vertices(X, order, pptr, cptr, cand_ptr, cand, Minv, box, reach, apart
                 for q in range(q0, q1):
                     clear[order[q]] = gap + reach
     return n
+
+
+@nb.njit(cache=True, nogil=True)
+def flesh_depth(V0, verts, T, b, pf, excess, out):
+    """How deep rest points ``V0[verts]``, moved by ``T`` (4, 4) into part
+    ``b``'s rest frame, lie in ``b``'s flesh (its field, rigid: the parts'
+    middles, away from the joints skinning blends): returns the deepest (0:
+    none inside). The points deeper than ``excess`` add the field's
+    gradient there into ``out[1:4]`` and themselves into ``out[4:7]`` (both
+    in ``b``'s rest frame), their count into ``out[0]``: each counts
+    alike, as the gradient deep inside a part turns with which side of it
+    is nearest."""
+    origin, cell, dims, ptr, values = pf[0], pf[1], pf[2], pf[3], pf[4]
+    worst = 0.0
+    for k in range(verts.shape[0]):
+        i = verts[k]
+        px, py, pz = V0[i, 0], V0[i, 1], V0[i, 2]
+        x = T[0, 0] * px + T[0, 1] * py + T[0, 2] * pz + T[0, 3]
+        y = T[1, 0] * px + T[1, 1] * py + T[1, 2] * pz + T[1, 3]
+        z = T[2, 0] * px + T[2, 1] * py + T[2, 2] * pz + T[2, 3]
+        v, gx, gy, gz = field_at(values, ptr, origin, cell, dims, b, x, y, z, False)
+        if v >= 0.0:
+            continue            # outside (FAR outside the grid)
+        d = -v
+        worst = max(worst, d)
+        if d > excess:
+            out[0] += 1.0
+            out[1] += gx
+            out[2] += gy
+            out[3] += gz
+            out[4] += x
+            out[5] += y
+            out[6] += z
+    return worst

@@ -101,7 +101,10 @@ class Stage:
     """
 
     name = "stage"
+    #: skins the frame (the one stage that fills ``surface``)
     skinning = False
+    #: changes the pose's bones (``G``, ``M``, the segments), before skinning
+    poses = False
 
     def __init__(self, character, params: dict) -> None:
         self.character = character
