@@ -517,8 +517,8 @@ def test_a_hand_pressed_into_the_hip_leaves_no_spikes(humanoid):
 #: Arms at the sides (shoulders lowered by the first number, radians) and
 #: the spine and chest leaning sideways (by the second, degrees, in all):
 #: the pose drives a forearm and hand into the hip and thigh.
-LEANS = {"arms down, leaning 20": (1.4, 20.0), "arms down, leaning 40": (1.4, 40.0),
-         "arms lowered, leaning 50": (1.2, 50.0)}
+LEANS = {"arms down, leaning 20": (1.4, 20.0), "arms down, leaning 30": (1.4, 30.0),
+         "arms lowered, leaning 40": (1.2, 40.0), "arms straight down, leaning 20": (1.5, 20.0)}
 
 
 def _lean(ch, arms, degrees):
@@ -530,11 +530,12 @@ def _lean(ch, arms, degrees):
 def test_a_lean_with_the_arms_down_turns_the_arm_out_of_the_hip(humanoid, pose):
     """The forearm and hand driven into the hip and thigh deeper than the
     contact can crease: without the turn it flattens them onto one surface
-    inside the body and keeps most of DQS's intersecting pairs (237, 237 and
-    304 against 328, 477 and 381) with sharp folds DQS does not have (0, 12,
-    30 against none); turned out about the shoulder and elbow, none of
-    either, roughness within 5% of DQS's, no skin moved further than the
-    turn's cap."""
+    inside the body and keeps most of DQS's intersecting pairs (237, 217,
+    188 and 227 against 328, 324, 214 and 477) with rougher skin (1.075 to
+    1.119 against 1.034 to 1.038) and sharp folds DQS does not have (2 and
+    9 where it has none); turned out about the shoulder, none of either,
+    roughness within 5% of DQS's, no skin moved further than the turn's
+    cap."""
     ch = humanoid
     q = _lean(ch, *LEANS[pose])
     si, sq = SelfIntersections(ch.V, ch.F, 0.0), SurfaceQuality(ch.V, ch.F)
@@ -549,20 +550,20 @@ def test_a_lean_with_the_arms_down_turns_the_arm_out_of_the_hip(humanoid, pose):
     assert o["turned"] > 0 and o["pairs"] <= 0.1 * d["pairs"], out
     assert o["folds90"] <= d["folds90"], out
     assert o["roughness"] <= 1.05 * d["roughness"], out
-    cap = 3.0 * np.median(ch.nearest_segments[1][:, 0][ch.rig.part == ch.skeleton.index("r_elbow")])
-    assert 0.0 < o["turn_mm"] <= 1e3 * cap + 1e-6, out
+    radius = ch.nearest_segments[1][:, 0][ch.rig.part == ch.skeleton.index("r_elbow")]
+    assert 0.0 < o["turn_mm"] <= 1e3 * 3.0 * np.median(radius) + 1e-6, out
 
 
 def test_the_turn_comes_in_without_a_jump(humanoid):
-    """Leaning from 14 to 32 degrees a degree a step, arms down: the turn
+    """Leaning from 14 to 28 degrees a degree a step, arms down: the turn
     starts from nothing and grows to about 100 mm at the hand, while the
     default's correction of DQS changes by at most 11 mm a step (9 mm at
-    the median; without the turn, up to 29 mm as the contact flattens the
+    the median; without the turn, up to 20 mm as the contact flattens the
     hand into the hip)."""
     ch = humanoid
     dq, ours = Pipeline.preset(ch, "dqs"), Pipeline(ch)
     last, steps, turned = None, [], []
-    for deg in np.arange(14.0, 32.5, 1.0):
+    for deg in np.arange(14.0, 28.5, 1.0):
         q = _lean(ch, 1.4, deg)
         C = ours.deform(q)[:len(ch.V)] - dq.deform(q)[:len(ch.V)]
         turned.append(ours.counts["turn_mm"])
@@ -572,6 +573,32 @@ def test_the_turn_comes_in_without_a_jump(humanoid):
     assert turned[0] == 0.0 and turned[-1] >= 90.0, turned
     assert np.all(np.diff(turned) >= 0.0), turned
     assert max(steps) <= 15.0, steps
+
+
+def test_the_turn_crosses_less_on_random_poses(humanoid):
+    """Poses no clip has (half the humanoid's joints turned at random, each
+    channel up to 92 degrees, seeded): with the turn, fewer exact
+    intersecting pairs and no more sharp folds summed than without it
+    (measured over these 30: 2,980 against 3,574 pairs, 465 against 474
+    folds; DQS 6,775 and 321), the skin finite."""
+    ch = humanoid
+    sk = ch.skeleton
+    si, sq = SelfIntersections(ch.V, ch.F, 0.0), SurfaceQuality(ch.V, ch.F)
+    on, off = Pipeline(ch), Pipeline(ch, turn_depth=0.0)
+    rng = np.random.default_rng(7)
+    pairs, folds, turned = np.zeros(2, dtype=int), np.zeros(2, dtype=int), 0
+    for _ in range(30):
+        q = sk.rest_pose().copy()
+        n = len(q) - 3
+        q[3:] = rng.uniform(-1.6, 1.6, n) * (rng.random(n) < 0.5)
+        a, b = on.deform(q)[:len(ch.V)].copy(), off.deform(q)[:len(ch.V)].copy()
+        turned += on.counts["turned"] > 0
+        assert np.isfinite(a).all()
+        pairs += (len(si.pairs(a)), len(si.pairs(b)))
+        folds += (sq(a)["folds90"], sq(b)["folds90"])
+    assert turned >= 3, turned
+    assert pairs[0] <= 0.9 * pairs[1], pairs
+    assert folds[0] <= folds[1], folds
 
 
 def test_carried_back_a_skinned_vertex_reads_its_rest_field(humanoid):

@@ -563,14 +563,15 @@ def boxed_vertices(X, order, pptr, cptr, cand_ptr, cand, Minv, box, reach, apart
 def flesh_depth(V0, verts, T, b, pf, excess, out):
     """How deep rest points ``V0[verts]``, moved by ``T`` (4, 4) into part
     ``b``'s rest frame, lie in ``b``'s flesh (its field, rigid: the parts'
-    middles, away from the joints skinning blends): returns the deepest (0:
-    none inside). The points deeper than ``excess`` add the field's
+    middles, away from the joints skinning blends): returns the deepest
+    (negative: the least clearance of any, with none inside; -:data:`FAR`
+    with none in the field's grid). The points deeper than ``excess`` add the field's
     gradient there into ``out[1:4]`` and themselves into ``out[4:7]`` (both
     in ``b``'s rest frame), their count into ``out[0]``: each counts
     alike, as the gradient deep inside a part turns with which side of it
     is nearest."""
     origin, cell, dims, ptr, values = pf[0], pf[1], pf[2], pf[3], pf[4]
-    worst = 0.0
+    worst = -FAR
     for k in range(verts.shape[0]):
         i = verts[k]
         px, py, pz = V0[i, 0], V0[i, 1], V0[i, 2]
@@ -578,9 +579,7 @@ def flesh_depth(V0, verts, T, b, pf, excess, out):
         y = T[1, 0] * px + T[1, 1] * py + T[1, 2] * pz + T[1, 3]
         z = T[2, 0] * px + T[2, 1] * py + T[2, 2] * pz + T[2, 3]
         v, gx, gy, gz = field_at(values, ptr, origin, cell, dims, b, x, y, z, False)
-        if v >= 0.0:
-            continue            # outside (FAR outside the grid)
-        d = -v
+        d = -v                  # -FAR outside the grid
         worst = max(worst, d)
         if d > excess:
             out[0] += 1.0
@@ -591,3 +590,41 @@ def flesh_depth(V0, verts, T, b, pf, excess, out):
             out[5] += y
             out[6] += z
     return worst
+
+
+@nb.njit(cache=True, nogil=True)
+def pair_depths(V0, vptr, vidx, pairs, M, Minv, centre, ball, pf, excess, worst, sums):
+    """:func:`flesh_depth` of part ``a``'s skin in part ``b``'s flesh for each
+    row ``(a, b)`` of ``pairs`` whose posed skins' bounding balls meet
+    (``centre`` (J, 3) rest, ``ball`` (J,) radii; part ``a``'s vertices
+    ``vidx[vptr[a]:vptr[a + 1]]``), moved by the skinning matrices ``M``
+    (``Minv`` their inverses):
+    the deepest into ``worst`` (-:data:`FAR` where the balls part) and the sums into
+    ``sums`` (P, 7), with ``excess`` (P,) per row."""
+    T = np.empty((4, 4))
+    out = np.zeros(7)
+    for p in range(pairs.shape[0]):
+        a, b = pairs[p, 0], pairs[p, 1]
+        worst[p] = -FAR
+        sums[p, :] = 0.0
+        d2 = 0.0
+        for r in range(3):
+            ca = (M[a, r, 0] * centre[a, 0] + M[a, r, 1] * centre[a, 1]
+                  + M[a, r, 2] * centre[a, 2] + M[a, r, 3])
+            cb = (M[b, r, 0] * centre[b, 0] + M[b, r, 1] * centre[b, 1]
+                  + M[b, r, 2] * centre[b, 2] + M[b, r, 3])
+            d2 += (ca - cb) ** 2
+        if d2 > (ball[a] + ball[b]) ** 2:
+            continue
+        # a's rest frame to b's
+        for r in range(4):
+            for c in range(4):
+                s = 0.0
+                for k in range(4):
+                    s += Minv[b, r, k] * M[a, k, c]
+                T[r, c] = s
+        out[:] = 0.0
+        worst[p] = flesh_depth(V0, vidx[vptr[a]:vptr[a + 1]], T, b, pf, excess[p], out)
+        sums[p, :] = out
+    return worst
+

@@ -5,16 +5,33 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.spatial import cKDTree
 
-from ..kernels.contact import flesh_depth
+from ..kernels.contact import pair_depths
 from .base import Frame, Stage
 
 #: A limb is turned about the first joint up its chain far enough that its
 #: largest move (``turn_shift``) turns it by at most MAX_TURN radians (as
 #: :data:`~skin_node.stages.untangle.MAX_TURN`).
 MAX_TURN = 0.4
-#: Halvings of the search for the least turn (a 1/4096 of the largest).
-BISECT = 12
+#: The ways a limb may turn out (about axes across it, the first along the
+#: other parts' field gradients, then alternately either side), and the
+#: steps up to FADE caps each is tried at before the least is bisected
+#: BISECT times.
+WAYS = 8
+SCAN = 8
+BISECT = 8
+#: A limb that the largest turn (``turn_shift``) leaves too deep is turned
+#: that far while the least turn that would do is within FADE times it, less
+#: the further past it that is, and not at all beyond: a limb driven that
+#: deep is left to the contact.
+FADE = 2.0
+#: The first test of a pair reads a sample of a part's vertices, one a cube
+#: SAMPLE of its limb radius across; a pair whose sample lies no deeper than
+#: ``turn_depth`` less the farthest any vertex is from the sample (or stays
+#: that far clear) cannot lie deeper (the field is a distance), and only the
+#: others are read in full.
+SAMPLE = 0.5
 
 
 def _rotation(axis: np.ndarray, angle: float, o: np.ndarray) -> np.ndarray:
@@ -36,24 +53,27 @@ class Turn(Stage):
     hand through the hip and thigh, deeper than skin can be moved out of it:
     the contact then flattens both sides onto one surface inside the body
     (the humanoid, arms lowered 80 degrees and leaning 20 degrees sideways:
-    237 intersecting pairs of DQS's 328, 12 sharp folds at 40 degrees where
-    DQS has none; see docs/design.md). A body would move the arm. So before skinning, each part
-    that is not a limb's top part (a forearm, a hand, a shin, a foot: its
-    parent has no other child) is tested against every larger part that
-    meets it at no joint: its rest skin, carried by its bone, read in the
-    other part's rest field (:func:`~skin_node.kernels.contact.flesh_depth`).
-    Where it lies deeper than ``turn_depth`` of its limb radius (skin to
-    bone at rest), the bones from the first joint up its chain at least
-    ``turn_shift`` / MAX_TURN limb radii from where it is deepest (the
-    shoulder for a forearm, climbing no higher than the limb's top and to no
-    joint that carries the other part) turn, away from the other part's
-    flesh along its field's gradient, by the least angle that leaves it no
-    deeper than ``turn_depth`` (bisected), at most so far that no skin it
-    carries moves more than ``turn_shift`` limb radii. The contact then
-    meets the rest as a crease. The least angle grows from zero as the limb
-    sinks in, so the turn comes in without a jump; the poses that the
-    contact creases cleanly (every built-in clip's frames, the test poses
-    beyond them) stay below ``turn_depth`` and are skinned as posed.
+    237 intersecting pairs of DQS's 328; see docs/design.md). A body would
+    move the arm. So before skinning, each part that is not a limb's top
+    part (a forearm, a hand, a shin, a foot: its parent has no other child)
+    is tested against every larger part that meets it at no joint: its rest
+    skin, carried by its bone, read in the other part's rest field
+    (:func:`~skin_node.kernels.contact.pair_depths`). Where it lies deeper
+    than ``turn_depth`` of its limb radius (skin to bone at rest), the bones
+    from the first joint up its chain at least ``turn_shift`` / MAX_TURN
+    limb radii from where it lies deep (the shoulder for a forearm, climbing
+    no higher than the limb's top and to no joint that carries a part it
+    lies in) turn by the least angle that leaves it no deeper than
+    ``turn_depth`` in any of those parts while driving nothing they carry
+    deeper into a part they do not (than at the pose, or than
+    ``turn_depth``): tried WAYS ways across the limb, first along the
+    parts' field gradients, in SCAN steps, the least bisected. No skin it
+    carries moves more than ``turn_shift`` limb radii: a limb that would
+    need more is held at that, and let go as it would need up to FADE
+    times as much (left to the contact). The least angle grows from zero as
+    the limb sinks in, so the turn comes in without a jump; the poses that
+    the contact creases cleanly (every built-in clip's frames, the test
+    poses beyond them) stay below ``turn_depth`` and are skinned as posed.
 
     The frame's bones (``G``, ``M``, the posed segments) are the turned ones
     for every stage after this one; the skin stands on them. How many limbs
@@ -102,6 +122,27 @@ class Turn(Stage):
                     continue
                 pairs.append((a, b))
         self._pairs = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+        # every two parts that meet at no joint, the first's skin in the
+        # second's flesh: a turn may not drive the skin it carries deeper
+        # into a part it does not carry
+        self._guard = np.array([(c, e) for c in range(J) for e in range(J)
+                                if has[c] and field[e] and c != e and par[c] != e
+                                and par[e] != c], dtype=np.int64).reshape(-1, 2)
+        self._full = self._csr(self._verts)
+        # each part's sample, and how far its vertices are from it at most
+        sample, self._gap = [], np.zeros(J)
+        for j, v in enumerate(self._verts):
+            if not len(v):
+                sample.append(v)
+                continue
+            cell = max(SAMPLE * self._radius[j], 1e-9)
+            key = np.floor(self._V0[v] / cell).astype(np.int64)
+            _, first = np.unique(key, axis=0, return_index=True)
+            keep = v[np.sort(first)]
+            sample.append(keep)
+            self._gap[j] = cKDTree(self._V0[keep]).query(self._V0[v])[0].max()
+        self._sample = self._csr(sample)
+        self._sums = np.zeros((0, 7))
         # the farthest rest skin each joint carries, from that joint: caps a turn
         self._reach = np.zeros(J)
         for k in range(J):
@@ -110,21 +151,52 @@ class Turn(Stage):
                 self._reach[k] = np.sqrt(((self._V0[v] - sk.rest_positions[k]) ** 2)
                                          .sum(axis=1)).max()
         self._seg_joint, self._segA, self._segB = sk.bone_segments()
-        self._out = np.zeros(7)
 
-    def _depth(self, fr: Frame, a: int, b: int, excess: float) -> float:
-        """How deep part ``a``'s skin lies in part ``b``'s flesh in ``fr``."""
-        T = np.ascontiguousarray(np.linalg.solve(fr.M[b], fr.M[a]))
-        self._out[:] = 0.0
-        return flesh_depth(self._V0, self._verts[a], T, b, self._pf, excess, self._out)
+    @staticmethod
+    def _csr(verts: list) -> tuple:
+        """Lists of vertices as ``(ptr, idx)``."""
+        ptr = np.concatenate([[0], np.cumsum([len(v) for v in verts])]).astype(np.int64)
+        return ptr, np.concatenate(verts).astype(np.int64)
 
-    def _pivot(self, a: int, b: int, c: np.ndarray, reach: float, G: np.ndarray) -> int:
+    def _depths(self, fr: Frame, pairs: np.ndarray, depth: float, Minv: np.ndarray,
+                sample: bool = False) -> np.ndarray:
+        """How deep each of ``pairs`` of parts (a, b) lies, a's skin (or its
+        sample) in b's flesh, in ``fr`` (:func:`~skin_node.kernels.contact.pair_depths`;
+        negative: its clearance); ``self._sums`` gets each one's sums."""
+        excess = depth * self._radius[pairs[:, 0]]
+        worst, sums = np.zeros(len(pairs)), np.zeros((len(pairs), 7))
+        pair_depths(self._V0, *(self._sample if sample else self._full), pairs, fr.M, Minv,
+                    self._centre, self._ball, self._pf, excess, worst, sums)
+        self._sums = sums
+        return worst
+
+    @staticmethod
+    def _axes(lever: np.ndarray, g: np.ndarray):
+        """The axes of the turns about a pivot that move a point ``lever``
+        from it each of WAYS ways across the lever, the first along ``g``
+        (projected), then alternately either side of it; None when the lever
+        is nil."""
+        n = float(np.linalg.norm(lever))
+        if n < 1e-9:
+            return None
+        L = lever / n
+        u = g - (g @ L) * L
+        if np.linalg.norm(u) <= 1e-9 * max(float(np.linalg.norm(g)), 1e-300):
+            u = np.cross(L, np.eye(3)[int(np.argmin(np.abs(L)))])
+        u /= np.linalg.norm(u)
+        v = np.cross(L, u)
+        order = [0] + [s * i for i in range(1, WAYS // 2 + 1) for s in (1, -1)][:WAYS - 1]
+        return [np.cross(L, math.cos(2 * math.pi * i / WAYS) * u
+                         + math.sin(2 * math.pi * i / WAYS) * v) for i in order]
+
+    def _pivot(self, a: int, others: np.ndarray, c: np.ndarray, reach: float,
+               G: np.ndarray) -> int:
         """The first joint up ``a``'s chain at least ``reach`` from ``c``, no
-        higher than the limb's top and carrying no part ``b``."""
+        higher than the limb's top and carrying none of the parts ``others``."""
         par, kids, below = self._parents, self._kids, self._below
         k = a
         while (np.linalg.norm(c - G[k, :3, 3]) < reach and par[par[k]] >= 0
-               and kids[par[k]] == 1 and not below[par[k], b]):
+               and kids[par[k]] == 1 and not below[par[k], others].any()):
             k = par[k]
         return k
 
@@ -134,51 +206,88 @@ class Turn(Stage):
         if depth <= 0.0 or shift <= 0.0 or not len(self._pairs):
             return
         M, G = fr.M, fr.G
-        a, b = self._pairs[:, 0], self._pairs[:, 1]
-        ca = np.einsum("pij,pj->pi", M[a, :3, :3], self._centre[a]) + M[a, :3, 3]
-        cb = np.einsum("pij,pj->pi", M[b, :3, :3], self._centre[b]) + M[b, :3, 3]
-        near = np.linalg.norm(ca - cb, axis=1) <= self._ball[a] + self._ball[b]
+        a = self._pairs[:, 0]
+        D = depth * self._radius[a]
+        maybe = self._depths(fr, self._pairs, depth, np.linalg.inv(M), True) + self._gap[a] > D
         moved = np.zeros(len(M), dtype=bool)
-        for a, b in self._pairs[near]:
+        for a in np.unique(self._pairs[maybe, 0]):
             D = depth * self._radius[a]
-            if self._depth(fr, a, b, D) <= D:
+            # in full (a turn before this one may have moved it too)
+            rows = self._pairs[maybe & (self._pairs[:, 0] == a)]
+            Minv = np.linalg.inv(M)
+            deep = self._depths(fr, rows, depth, Minv) > D
+            if not deep.any():
                 continue
-            # where it lies deep, and the way out: b's field gradient there
-            R, t = M[b, :3, :3], M[b, :3, 3]
-            out = self._out
-            g = R @ out[1:4]
-            c = R @ (out[4:7] / out[0]) + t
+            # where it lies deep: about which joint it turns
+            c, g, n = np.zeros(3), np.zeros(3), 0.0
+            for b, sums in zip(rows[deep, 1], self._sums[deep]):
+                c += M[b, :3, :3] @ sums[4:7] + sums[0] * M[b, :3, 3]
+                g += M[b, :3, :3] @ sums[1:4]
+                n += sums[0]
             span = shift * self._radius[a]
-            k = self._pivot(a, b, c, span / MAX_TURN, G)
+            k = self._pivot(a, rows[deep, 1], c / n, span / MAX_TURN, G)
             o = G[k, :3, 3].copy()
-            axis = np.cross(c - o, g)
-            n = float(np.linalg.norm(axis))
-            if n < 1e-12:
-                continue        # the way out runs through the pivot
-            axis /= n
+            axes = self._axes(c / n - o, g)
+            if axes is None:
+                continue        # it lies deep at the pivot itself
             # no skin carried further than the span: a chord of the farthest
             top = 2.0 * math.asin(min(1.0, span / (2.0 * max(self._reach[k], 1e-9))))
             sub = self._below[k]
             M0, G0 = M[sub].copy(), G[sub].copy()
+            rows = rows[deep]
+            # what it carries may go no deeper into a part it does not carry
+            # than at the pose, nor deeper than turn_depth where it was clear
+            guard = self._guard[sub[self._guard[:, 0]] & ~sub[self._guard[:, 1]]]
+            guard = guard[~((guard[:, 0] == a) & np.isin(guard[:, 1], rows[:, 1]))]
+            limit = np.maximum(self._depths(fr, guard, depth, Minv),
+                               depth * self._radius[guard[:, 0]]) + 1e-9
 
-            def place(angle):
+            def place(axis, angle):
                 T = _rotation(axis, angle, o)
                 M[sub] = T @ M0
                 G[sub] = T @ G0
-                return self._depth(fr, a, b, D)
 
-            if place(top) <= D:
-                lo, hi = 0.0, top
-                for _ in range(BISECT):
-                    mid = 0.5 * (lo + hi)
-                    lo, hi = (lo, mid) if place(mid) <= D else (mid, hi)
-                place(hi)
-            else:
-                hi = top            # as far as it may go: the contact meets the rest
+            def safe(axis, angle):
+                # only the bones from k down moved: the others' inverses stand
+                place(axis, angle)
+                return not len(guard) or bool(np.all(
+                    self._depths(fr, guard, depth, Minv) <= limit))
+
+            def out(axis, angle):
+                place(axis, angle)
+                return self._depths(fr, rows, depth, Minv).max() <= D and safe(axis, angle)
+
+            # the least turn that takes it out, up to FADE caps: the first
+            # way (nearest the fields' own) out at the least step, bisected
+            steps = np.arange(1, SCAN + 1) * (FADE * top / SCAN)
+            found = next(((axis, m) for m, angle in enumerate(steps) for axis in axes
+                          if out(axis, angle)), None)
+            if found is None:
+                place(axes[0], 0.0)
+                continue        # nothing takes it out: it is left to the contact
+            axis, m = found
+            lo, hi = (steps[m - 1] if m else 0.0), steps[m]
+            for _ in range(BISECT):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (lo, mid) if out(axis, mid) else (mid, hi)
+            angle = hi
+            if angle > top:
+                # past the cap: held at it, let go as the least turn grows
+                # to FADE caps; no deeper in the guarded parts on the way
+                angle = top * (FADE - angle / top) / (FADE - 1.0)
+                if not safe(axis, angle):
+                    lo, hi = 0.0, angle
+                    for _ in range(BISECT):
+                        mid = 0.5 * (lo + hi)
+                        lo, hi = (mid, hi) if safe(axis, mid) else (lo, mid)
+                    angle = lo
+            place(axis, angle)
+            if angle <= 0.0:
+                continue
             moved |= sub
             fr.counts["turned"] += 1
             fr.counts["turn_mm"] = max(fr.counts["turn_mm"],
-                                       2e3 * math.sin(0.5 * hi) * self._reach[k])
+                                       2e3 * math.sin(0.5 * angle) * self._reach[k])
         if moved.any():
             s = moved[self._seg_joint]
             j = self._seg_joint[s]
