@@ -21,6 +21,9 @@ MAX_TURN = 0.4
 WAYS = 8
 SCAN = 8
 BISECT = 8
+#: Another way is taken only where it takes the limb out with less than
+#: PREFER of the fields' own way's angle.
+PREFER = 0.75
 #: A limb that the largest turn (``turn_shift``) leaves too deep is turned
 #: that far while the least turn that would do is within FADE times it, less
 #: the further past it that is, and not at all beyond: a limb driven that
@@ -257,20 +260,34 @@ class Turn(Stage):
                 place(axis, angle)
                 return self._depths(fr, rows, depth, Minv).max() <= D and safe(axis, angle)
 
-            # the least turn that takes it out, up to FADE caps: the first
-            # way (nearest the fields' own) out at the least step, bisected
             steps = np.arange(1, SCAN + 1) * (FADE * top / SCAN)
-            found = next(((axis, m) for m, angle in enumerate(steps) for axis in axes
-                          if out(axis, angle)), None)
-            if found is None:
+
+            def least(axis, below):
+                """The least angle under ``below`` that takes it out this
+                way (a step that does, bisected from the one before), or
+                None."""
+                for m in range(int(np.searchsorted(steps, below))):
+                    if out(axis, steps[m]):
+                        lo, hi = (steps[m - 1] if m else 0.0), steps[m]
+                        for _ in range(BISECT):
+                            mid = 0.5 * (lo + hi)
+                            lo, hi = (lo, mid) if out(axis, mid) else (mid, hi)
+                        return hi
+                return None
+
+            # the least turn that takes it out within FADE caps: the fields'
+            # own way unless another does with less than PREFER of its
+            # angle (the least over all ways switched between two frames of
+            # CesiumMan's walk, a hand swinging 45 degrees and 84 mm)
+            axis, angle = axes[0], least(axes[0], np.inf)
+            bound = np.inf if angle is None else PREFER * angle
+            for other in axes[1:]:
+                a_ = least(other, bound)
+                if a_ is not None:
+                    axis, angle, bound = other, a_, a_
+            if angle is None:
                 place(axes[0], 0.0)
                 continue        # nothing takes it out: it is left to the contact
-            axis, m = found
-            lo, hi = (steps[m - 1] if m else 0.0), steps[m]
-            for _ in range(BISECT):
-                mid = 0.5 * (lo + hi)
-                lo, hi = (lo, mid) if out(axis, mid) else (mid, hi)
-            angle = hi
             if angle > top:
                 # past the cap: held at it, let go as the least turn grows
                 # to FADE caps; no deeper in the guarded parts on the way
