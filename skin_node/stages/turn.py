@@ -29,6 +29,12 @@ PREFER = 0.75
 #: the further past it that is, and not at all beyond: a limb driven that
 #: deep is left to the contact.
 FADE = 2.0
+#: A part of fewer vertices is not turned: read at a handful of corners (a
+#: limb a box of eight, RiggedFigure's), its depth misses its faces and a
+#: turn swung it between frames (the file-weighted punch's worst frame 13
+#: -> 43 intersecting pairs of DQS's 100, its largest change between two
+#: frames 169 -> 218 mm). CesiumMan's smallest part has 27.
+MIN_VERTICES = 20
 #: The first test of a pair reads a sample of a part's vertices, one a cube
 #: SAMPLE of its limb radius across; a pair whose sample lies no deeper than
 #: ``turn_depth`` less the farthest any vertex is from the sample (or stays
@@ -114,8 +120,8 @@ class Turn(Stage):
         pairs = []
         for a in range(J):
             # not the root, not a limb's top part (its parent branches), and
-            # carried by a bone with flesh of its own
-            if not has[a] or par[a] <= 0 or kids[par[a]] != 1:
+            # carried by a bone with flesh of its own, of MIN_VERTICES or more
+            if len(self._verts[a]) < MIN_VERTICES or par[a] <= 0 or kids[par[a]] != 1:
                 continue
             for b in range(J):
                 # another part it meets at no joint and does not carry, larger
