@@ -296,14 +296,11 @@ class Turn(Stage):
                 continue        # nothing takes it out: it is left to the contact
             if angle > top:
                 # past the cap: held at it, let go as the least turn grows
-                # to FADE caps; no deeper in the guarded parts on the way
+                # to FADE caps (cut back further where a part it carries
+                # went deeper on the way, the turn of CesiumMan's forearm
+                # out of its hip flicked on and off between 120 Hz frames of
+                # the punch: its upper arm lies in the hip too)
                 angle = top * (FADE - angle / top) / (FADE - 1.0)
-                if not safe(axis, angle):
-                    lo, hi = 0.0, angle
-                    for _ in range(BISECT):
-                        mid = 0.5 * (lo + hi)
-                        lo, hi = (mid, hi) if safe(axis, mid) else (lo, mid)
-                    angle = lo
             place(axis, angle)
             if angle <= 0.0:
                 continue
