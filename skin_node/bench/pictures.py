@@ -4,7 +4,8 @@
 
 Rows: the arm's elbow at 150 degrees seen from the crease side, its wrist
 twisted 180 degrees, the humanoid's deepest squat from the side and from
-behind, and its walk's armpit. Columns: methods (LBS, DQS, the paper's, ours
+behind, its walk's armpit, and its arms down while it leans sideways (a
+hand driven into the hip). Columns: methods (LBS, DQS, the paper's, ours
 by default). Every pixel shows the nearest skin (:mod:`skin_node.kernels.raster`);
 faces seen from behind (skin turned inside out) are blue, faces of an
 intersecting triangle pair red, and each panel's title gives the pose's
@@ -39,6 +40,10 @@ def views(quick: bool = False) -> list:
                        for q in make_clip("squat", ch.skeleton).frames]))]
     walk = lambda ch: make_clip("walk", ch.skeleton).frames[  # noqa: E731
         len(make_clip("walk", ch.skeleton).frames) // 4]
+    # arms 80 degrees down from the T-pose, spine and chest leaning 15 each:
+    # the pose drives the right forearm and hand into the hip and thigh
+    lean = lambda ch: ch.pose(spine_rx=np.radians(15), chest_rx=np.radians(15),  # noqa: E731
+                              l_shoulder_rx=-1.4, r_shoulder_rx=1.4)
     return [
         ("arm, elbow 150 deg, crease side", "arm", arm_n,
          lambda ch: ch.pose(elbow_rz=np.radians(150)), (0.12, 0.32, 0.16), "elbow", (0, 0, 1)),
@@ -50,6 +55,8 @@ def views(quick: bool = False) -> list:
          "pelvis", (0, 0, 1)),
         ("humanoid, walk, armpit", "humanoid", hum_n, walk, (0.35, -0.45, -0.05),
          "r_shoulder", (0, 0, 1)),
+        ("humanoid, arms down, leaning 30 deg", "humanoid", hum_n, lean, (1.0, -0.5, 0.1),
+         "r_hip", (0, 0, 1)),
     ]
 
 
