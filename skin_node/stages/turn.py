@@ -53,6 +53,21 @@ def _rotation(axis: np.ndarray, angle: float, o: np.ndarray) -> np.ndarray:
     return T
 
 
+def pivot(parents: np.ndarray, kids: np.ndarray, below: np.ndarray, j: int,
+          others: np.ndarray, c: np.ndarray, reach: float, G: np.ndarray) -> int:
+    """The joint a limb part ``j`` turns about to move its point ``c``: the
+    first up its chain from ``j`` at least ``reach`` from ``c`` (``G`` the
+    posed joints), climbing no higher than the limb's top (a joint whose
+    parent has other children: a shoulder, a hip) and to no joint that
+    carries one of the parts ``others`` (``below``: :meth:`Skeleton.subtree`;
+    ``kids``: each joint's count of children)."""
+    k = j
+    while (np.linalg.norm(c - G[k, :3, 3]) < reach and parents[parents[k]] >= 0
+           and kids[parents[k]] == 1 and not below[parents[k], others].any()):
+        k = parents[k]
+    return k
+
+
 class Turn(Stage):
     """Limbs the pose drives deep into another part's flesh turned out of it,
     bones and all, before skinning.
@@ -198,17 +213,6 @@ class Turn(Stage):
         return [np.cross(L, math.cos(2 * math.pi * i / WAYS) * u
                          + math.sin(2 * math.pi * i / WAYS) * v) for i in order]
 
-    def _pivot(self, a: int, others: np.ndarray, c: np.ndarray, reach: float,
-               G: np.ndarray) -> int:
-        """The first joint up ``a``'s chain at least ``reach`` from ``c``, no
-        higher than the limb's top and carrying none of the parts ``others``."""
-        par, kids, below = self._parents, self._kids, self._below
-        k = a
-        while (np.linalg.norm(c - G[k, :3, 3]) < reach and par[par[k]] >= 0
-               and kids[par[k]] == 1 and not below[par[k], others].any()):
-            k = par[k]
-        return k
-
     def __call__(self, fr: Frame) -> None:
         fr.counts["turned"], fr.counts["turn_mm"] = 0, 0.0
         depth, shift = float(self.params["turn_depth"]), float(self.params["turn_shift"])
@@ -234,7 +238,8 @@ class Turn(Stage):
                 g += M[b, :3, :3] @ sums[1:4]
                 n += sums[0]
             span = shift * self._radius[a]
-            k = self._pivot(a, rows[deep, 1], c / n, span / MAX_TURN, G)
+            k = pivot(self._parents, self._kids, self._below, a, rows[deep, 1], c / n,
+                      span / MAX_TURN, G)
             o = G[k, :3, 3].copy()
             axes = self._axes(c / n - o, g)
             if axes is None:

@@ -13,6 +13,7 @@ from ..kernels.smoothing import EVEN, laplacian_smooth, ring_layout, vertex_face
 from ..kernels.untangle import push_apart
 from ..metrics import interior_edges, unit_normals
 from .base import Frame, Stage
+from .turn import pivot
 
 #: Where a round of pushes bent an edge by more than EASE_BEND degrees since
 #: the stage began, the push (not the skin) at its four corners is smoothed
@@ -218,14 +219,9 @@ class LimbTurn:
         climbing no higher than the top of the limb (the joint whose parent
         branches: a shoulder, a hip) and never to a joint that carries one
         of the parts ``others``; None when ``j`` itself carries one."""
-        par, below, kids = self._parents, self._below, self._kids
-        if par[j] < 0 or below[j, others].any():
+        if self._parents[j] < 0 or self._below[j, others].any():
             return None
-        k = j
-        while (np.linalg.norm(c - G[k, :3, 3]) < reach and par[par[k]] >= 0
-               and kids[par[k]] == 1 and not below[par[k], others].any()):
-            k = par[k]
-        return k
+        return pivot(self._parents, self._kids, self._below, j, others, c, reach, G)
 
     def _turns(self, X: np.ndarray, G: np.ndarray, movers: tuple, sel: np.ndarray,
                span: float):
