@@ -166,7 +166,6 @@ class Turn(Stage):
             sample.append(keep)
             self._gap[j] = cKDTree(self._V0[keep]).query(self._V0[v])[0].max()
         self._sample = self._csr(sample)
-        self._sums = np.zeros((0, 7))
         # the farthest rest skin each joint carries, from that joint: caps a turn
         self._reach = np.zeros(J)
         for k in range(J):
@@ -186,13 +185,13 @@ class Turn(Stage):
                 sample: bool = False) -> np.ndarray:
         """How deep each of ``pairs`` of parts (a, b) lies, a's skin (or its
         sample) in b's flesh, in ``fr`` (:func:`~skin_node.kernels.contact.pair_depths`;
-        negative: its clearance); ``self._sums`` gets each one's sums."""
+        negative: its clearance), and each one's sums of the points deeper
+        than ``depth`` of a's radius."""
         excess = depth * self._radius[pairs[:, 0]]
         worst, sums = np.zeros(len(pairs)), np.zeros((len(pairs), 7))
         pair_depths(self._V0, *(self._sample if sample else self._full), pairs, fr.M, Minv,
                     self._centre, self._ball, self._pf, excess, worst, sums)
-        self._sums = sums
-        return worst
+        return worst, sums
 
     @staticmethod
     def _axes(lever: np.ndarray, g: np.ndarray):
@@ -221,22 +220,23 @@ class Turn(Stage):
         M, G = fr.M, fr.G
         a = self._pairs[:, 0]
         D = depth * self._radius[a]
-        maybe = self._depths(fr, self._pairs, depth, np.linalg.inv(M), True) + self._gap[a] > D
+        maybe = self._depths(fr, self._pairs, depth, np.linalg.inv(M), True)[0] + self._gap[a] > D
         moved = np.zeros(len(M), dtype=bool)
         for a in np.unique(self._pairs[maybe, 0]):
             D = depth * self._radius[a]
             # in full (a turn before this one may have moved it too)
             rows = self._pairs[maybe & (self._pairs[:, 0] == a)]
             Minv = np.linalg.inv(M)
-            deep = self._depths(fr, rows, depth, Minv) > D
+            worst, sums = self._depths(fr, rows, depth, Minv)
+            deep = worst > D
             if not deep.any():
                 continue
             # where it lies deep: about which joint it turns
             c, g, n = np.zeros(3), np.zeros(3), 0.0
-            for b, sums in zip(rows[deep, 1], self._sums[deep]):
-                c += M[b, :3, :3] @ sums[4:7] + sums[0] * M[b, :3, 3]
-                g += M[b, :3, :3] @ sums[1:4]
-                n += sums[0]
+            for b, out in zip(rows[deep, 1], sums[deep]):
+                c += M[b, :3, :3] @ out[4:7] + out[0] * M[b, :3, 3]
+                g += M[b, :3, :3] @ out[1:4]
+                n += out[0]
             span = shift * self._radius[a]
             k = pivot(self._parents, self._kids, self._below, a, rows[deep, 1], c / n,
                       span / MAX_TURN, G)
@@ -253,7 +253,7 @@ class Turn(Stage):
             # than at the pose, nor deeper than turn_depth where it was clear
             guard = self._guard[sub[self._guard[:, 0]] & ~sub[self._guard[:, 1]]]
             guard = guard[~((guard[:, 0] == a) & np.isin(guard[:, 1], rows[:, 1]))]
-            limit = np.maximum(self._depths(fr, guard, depth, Minv),
+            limit = np.maximum(self._depths(fr, guard, depth, Minv)[0],
                                depth * self._radius[guard[:, 0]]) + 1e-9
 
             def place(axis, angle):
@@ -265,11 +265,11 @@ class Turn(Stage):
                 # only the bones from k down moved: the others' inverses stand
                 place(axis, angle)
                 return not len(guard) or bool(np.all(
-                    self._depths(fr, guard, depth, Minv) <= limit))
+                    self._depths(fr, guard, depth, Minv)[0] <= limit))
 
             def out(axis, angle):
                 place(axis, angle)
-                return self._depths(fr, rows, depth, Minv).max() <= D and safe(axis, angle)
+                return self._depths(fr, rows, depth, Minv)[0].max() <= D and safe(axis, angle)
 
             steps = np.arange(1, SCAN + 1) * (FADE * top / SCAN)
 
