@@ -261,15 +261,12 @@ class Turn(Stage):
                 M[sub] = T @ M0
                 G[sub] = T @ G0
 
-            def safe(axis, angle):
+            def out(axis, angle):
                 # only the bones from k down moved: the others' inverses stand
                 place(axis, angle)
-                return not len(guard) or bool(np.all(
-                    self._depths(fr, guard, depth, Minv)[0] <= limit))
-
-            def out(axis, angle):
-                place(axis, angle)
-                return self._depths(fr, rows, depth, Minv)[0].max() <= D and safe(axis, angle)
+                return (self._depths(fr, rows, depth, Minv)[0].max() <= D
+                        and (not len(guard) or bool(np.all(
+                            self._depths(fr, guard, depth, Minv)[0] <= limit))))
 
             steps = np.arange(1, SCAN + 1) * (FADE * top / SCAN)
 
@@ -301,10 +298,10 @@ class Turn(Stage):
                 continue        # nothing takes it out: it is left to the contact
             if angle > top:
                 # past the cap: held at it, let go as the least turn grows
-                # to FADE caps (cut back further where a part it carries
-                # went deeper on the way, the turn of CesiumMan's forearm
-                # out of its hip flicked on and off between 120 Hz frames of
-                # the punch: its upper arm lies in the hip too)
+                # to FADE caps, and not cut back where a part it carries goes
+                # deeper on the way (cut back, the turn of CesiumMan's
+                # forearm out of its hip flicked on and off between 120 Hz
+                # frames of the punch: its upper arm lies in the hip too)
                 angle = top * (FADE - angle / top) / (FADE - 1.0)
             place(axis, angle)
             if angle <= 0.0:
