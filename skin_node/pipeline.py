@@ -160,8 +160,8 @@ PIPELINE_PARAMS = {
                             "in than this, in the limb's radii (skin to bone at rest), until "
                             "it lies no deeper (0: never)"),
     "turn_shift": ParamSpec(float, 3.0, 0.0, 10.0, "the farthest the turn stage moves skin, "
-                            "in the turned limb's radii (a limb that would need more than "
-                            "twice that is left to the contact)"),
+                            "in the turned limb's radii (a limb that would need more is "
+                            "turned this far and the contact does the rest)"),
     "bulge_limit": ParamSpec(float, 0.1, 0.001, 2.0, "the most skin stands out from its bone "
                              "beyond its rest distance, in rest distances"),
     "bulge_smoothing": ParamSpec(int, 2, 0, 100, "Laplacian passes over the bulge limit's "

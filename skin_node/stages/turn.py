@@ -14,21 +14,10 @@ from .base import Frame, Stage
 #: largest move (``turn_shift``) turns it by at most MAX_TURN radians (as
 #: :data:`~skin_node.stages.untangle.MAX_TURN`).
 MAX_TURN = 0.4
-#: The ways a limb may turn out (about axes across it, the first along the
-#: other parts' field gradients, then alternately either side), and the
-#: steps up to FADE caps each is tried at before the least is bisected
-#: BISECT times.
-WAYS = 8
+#: The least turn that takes a limb out is found in SCAN steps up to its
+#: cap, the first that does bisected BISECT times.
 SCAN = 8
 BISECT = 8
-#: Another way is taken only where it takes the limb out with less than
-#: PREFER of the fields' own way's angle.
-PREFER = 0.75
-#: A limb that the largest turn (``turn_shift``) leaves too deep is turned
-#: that far while the least turn that would do is within FADE times it, less
-#: the further past it that is, and not at all beyond: a limb driven that
-#: deep is left to the contact.
-FADE = 2.0
 #: A part of fewer vertices is not turned: read at a handful of corners (a
 #: limb a box of eight, RiggedFigure's), its depth misses its faces and a
 #: turn swung it between frames (the file-weighted punch's worst frame 13
@@ -85,19 +74,22 @@ class Turn(Stage):
     (:func:`~skin_node.kernels.contact.pair_depths`). Where it lies deeper
     than ``turn_depth`` of its limb radius (skin to bone at rest), the bones
     from the first joint up its chain at least ``turn_shift`` / MAX_TURN
-    limb radii from where it lies deep (the shoulder for a forearm, climbing
+    limb radii from its middle (the shoulder for a forearm, climbing
     no higher than the limb's top and to no joint that carries a part it
     lies in) turn by the least angle that leaves it no deeper than
     ``turn_depth`` in any of those parts while driving nothing they carry
     deeper into a part they do not (than at the pose, or than
-    ``turn_depth``): tried WAYS ways across the limb, first along the
-    parts' field gradients, in SCAN steps, the least bisected. No skin it
-    carries moves more than ``turn_shift`` limb radii: a limb that would
-    need more is held at that, and let go as it would need up to FADE
-    times as much (left to the contact). The least angle grows from zero as
-    the limb sinks in, so the turn comes in without a jump; the poses that
-    the contact creases cleanly (every built-in clip's frames, the test
-    poses beyond them) stay below ``turn_depth`` and are skinned as posed.
+    ``turn_depth``). It turns back towards where it sat against those parts
+    at rest (the way it lay from the pivot in their frames then: for an arm
+    hanging into the hip, out to the side, towards the T-pose), a way that
+    follows the pose smoothly. No skin it carries moves more than
+    ``turn_shift`` limb radii: a limb that would need more (or that no turn
+    within that takes out) is turned that far and the contact does the
+    rest. The least angle grows from zero as the limb sinks in and stays at
+    the cap as it sinks further, so the turn comes in and holds without a
+    jump; the poses that the contact creases cleanly (every built-in
+    clip's frames, the test poses beyond them) stay below ``turn_depth``
+    and are skinned as posed.
 
     The frame's bones (``G``, ``M``, the posed segments) are the turned ones
     for every stage after this one; the skin stands on them. How many limbs
@@ -174,6 +166,7 @@ class Turn(Stage):
                 self._reach[k] = np.sqrt(((self._V0[v] - sk.rest_positions[k]) ** 2)
                                          .sum(axis=1)).max()
         self._seg_joint, self._segA, self._segB = sk.bone_segments()
+        self._rest = np.asarray(sk.rest_positions, dtype=np.float64)
 
     @staticmethod
     def _csr(verts: list) -> tuple:
@@ -194,23 +187,19 @@ class Turn(Stage):
         return worst, sums
 
     @staticmethod
-    def _axes(lever: np.ndarray, g: np.ndarray):
-        """The axes of the turns about a pivot that move a point ``lever``
-        from it each of WAYS ways across the lever, the first along ``g``
-        (projected), then alternately either side of it; None when the lever
-        is nil."""
+    def _axis(lever: np.ndarray, way: np.ndarray):
+        """The unit axis of the turn about a pivot that moves a point
+        ``lever`` from it towards ``way`` (across the lever), or None where
+        ``way`` lies along it or the lever is nil."""
         n = float(np.linalg.norm(lever))
         if n < 1e-9:
             return None
         L = lever / n
-        u = g - (g @ L) * L
-        if np.linalg.norm(u) <= 1e-9 * max(float(np.linalg.norm(g)), 1e-300):
-            u = np.cross(L, np.eye(3)[int(np.argmin(np.abs(L)))])
-        u /= np.linalg.norm(u)
-        v = np.cross(L, u)
-        order = [0] + [s * i for i in range(1, WAYS // 2 + 1) for s in (1, -1)][:WAYS - 1]
-        return [np.cross(L, math.cos(2 * math.pi * i / WAYS) * u
-                         + math.sin(2 * math.pi * i / WAYS) * v) for i in order]
+        u = way - (way @ L) * L
+        m = float(np.linalg.norm(u))
+        if m <= 1e-6 * max(float(np.linalg.norm(way)), 1e-300):
+            return None
+        return np.cross(L, u / m)
 
     def __call__(self, fr: Frame) -> None:
         fr.counts["turned"], fr.counts["turn_mm"] = 0, 0.0
@@ -222,27 +211,48 @@ class Turn(Stage):
         D = depth * self._radius[a]
         maybe = self._depths(fr, self._pairs, depth, np.linalg.inv(M), True)[0] + self._gap[a] > D
         moved = np.zeros(len(M), dtype=bool)
-        for a in np.unique(self._pairs[maybe, 0]):
+        # parents before children (the skeleton's order): a part a turn
+        # carried is tested again where it was carried to (an arm turned out
+        # of the hip about the shoulder can take its hand into the thigh)
+        for a in np.unique(self._pairs[:, 0]):
             D = depth * self._radius[a]
-            # in full (a turn before this one may have moved it too)
-            rows = self._pairs[maybe & (self._pairs[:, 0] == a)]
+            mine = self._pairs[:, 0] == a
             Minv = np.linalg.inv(M)
+            if moved[a]:
+                maybe[mine] = (self._depths(fr, self._pairs[mine], depth, Minv, True)[0]
+                               + self._gap[a] > D)
+            if not (maybe & mine).any():
+                continue
+            # in full (a turn before this one may have moved it too)
+            rows = self._pairs[maybe & mine]
             worst, sums = self._depths(fr, rows, depth, Minv)
             deep = worst > D
             if not deep.any():
                 continue
-            # where it lies deep: about which joint it turns
+            # about which joint it turns (from its middle), where it lies
+            # deep (c) and the way it turns out (back): towards the way that
+            # skin lay from the joint at rest (r: its rest place), turned as
+            # each part it lies in is turned, so an arm hanging into the hip
+            # turns out towards the T-pose; the fields' gradients where that
+            # runs along the lever
             c, g, n = np.zeros(3), np.zeros(3), 0.0
+            span = shift * self._radius[a]
+            k = pivot(self._parents, self._kids, self._below, a, rows[deep, 1],
+                      M[a, :3, :3] @ self._centre[a] + M[a, :3, 3], span / MAX_TURN, G)
+            o = G[k, :3, 3].copy()
+            back = np.zeros(3)
             for b, out in zip(rows[deep, 1], sums[deep]):
-                c += M[b, :3, :3] @ out[4:7] + out[0] * M[b, :3, 3]
+                cb = M[b, :3, :3] @ out[4:7] + out[0] * M[b, :3, 3]
+                r = Minv[a, :3, :3] @ (cb / out[0]) + Minv[a, :3, 3]
+                w = M[b, :3, :3] @ (r - self._rest[k])
+                back += out[0] * w / max(float(np.linalg.norm(w)), 1e-12)
+                c += cb
                 g += M[b, :3, :3] @ out[1:4]
                 n += out[0]
-            span = shift * self._radius[a]
-            k = pivot(self._parents, self._kids, self._below, a, rows[deep, 1], c / n,
-                      span / MAX_TURN, G)
-            o = G[k, :3, 3].copy()
-            axes = self._axes(c / n - o, g)
-            if axes is None:
+            axis = self._axis(c / n - o, back)
+            if axis is None:
+                axis = self._axis(c / n - o, g)
+            if axis is None:
                 continue        # it lies deep at the pivot itself
             # no skin carried further than the span: a chord of the farthest
             top = 2.0 * math.asin(min(1.0, span / (2.0 * max(self._reach[k], 1e-9))))
@@ -268,44 +278,21 @@ class Turn(Stage):
                         and (not len(guard) or bool(np.all(
                             self._depths(fr, guard, depth, Minv)[0] <= limit))))
 
-            steps = np.arange(1, SCAN + 1) * (FADE * top / SCAN)
-
-            def least(axis, below):
-                """The least angle under ``below`` that takes it out this
-                way (a step that does, bisected from the one before), or
-                None."""
-                for m in range(int(np.searchsorted(steps, below))):
-                    if out(axis, steps[m]):
-                        lo, hi = (steps[m - 1] if m else 0.0), steps[m]
-                        for _ in range(BISECT):
-                            mid = 0.5 * (lo + hi)
-                            lo, hi = (lo, mid) if out(axis, mid) else (mid, hi)
-                        return hi
-                return None
-
-            # the least turn that takes it out within FADE caps: the fields'
-            # own way unless another does with less than PREFER of its
-            # angle (the least over all ways switched between two frames of
-            # CesiumMan's walk, a hand swinging 45 degrees and 84 mm)
-            axis, angle = axes[0], least(axes[0], np.inf)
-            bound = np.inf if angle is None else PREFER * angle
-            for other in axes[1:]:
-                a_ = least(other, bound)
-                if a_ is not None:
-                    axis, angle, bound = other, a_, a_
-            if angle is None:
-                place(axes[0], 0.0)
-                continue        # nothing takes it out: it is left to the contact
-            if angle > top:
-                # past the cap: held at it, let go as the least turn grows
-                # to FADE caps, and not cut back where a part it carries goes
-                # deeper on the way (cut back, the turn of CesiumMan's
-                # forearm out of its hip flicked on and off between 120 Hz
-                # frames of the punch: its upper arm lies in the hip too)
-                angle = top * (FADE - angle / top) / (FADE - 1.0)
+            # the least turn within the cap that takes it out; none: the cap,
+            # not cut back where the guard holds (cut back, CesiumMan's
+            # forearm turn out of its hip flicked on and off between 120 Hz
+            # frames of the punch: its upper arm lies in the hip too)
+            steps = np.arange(1, SCAN + 1) * (top / SCAN)
+            angle = top
+            for m in range(SCAN):
+                if out(axis, steps[m]):
+                    lo, hi = (steps[m - 1] if m else 0.0), steps[m]
+                    for _ in range(BISECT):
+                        mid = 0.5 * (lo + hi)
+                        lo, hi = (lo, mid) if out(axis, mid) else (mid, hi)
+                    angle = hi
+                    break
             place(axis, angle)
-            if angle <= 0.0:
-                continue
             moved |= sub
             fr.counts["turned"] += 1
             fr.counts["turn_mm"] = max(fr.counts["turn_mm"],
