@@ -194,12 +194,14 @@ def test_a_mesh_modelled_in_an_a_pose_plays_the_clips_as_the_template_does(human
     """The built-in clips assume the template's rest pose, arms out level. A
     mesh modelled with its arms lowered 35 degrees (our humanoid, posed by
     DQS) played the walk's arms 35 degrees lower than the template, into the
-    torso: DQS crossed itself at 460 intersecting pairs and the default at
-    325, against 0 for both on the same body modelled in the T-pose. Its fit
-    records the template's arm directions and the clips are turned to them:
-    every arm bone points where the T-pose body's does at every frame (0.0
-    degrees apart, 35 raw), and the walk keeps the skin apart (0 pairs under
-    DQS and the default, every 8th frame).
+    torso: DQS crossed itself at 456 intersecting pairs and the default
+    without its turn stage at 276, against 0 for both on the same body
+    modelled in the T-pose; the default turned the arms out of the torso on
+    every frame, by up to 109 mm. Its fit records the template's arm
+    directions and the clips are turned to them: every arm bone points where
+    the T-pose body's does at every frame (0.0 degrees apart, 35 raw), and
+    the walk keeps the skin apart (0 pairs under DQS and the default, every
+    8th frame) with no arm turned.
     A T-pose mesh's fit records none, and its clips are the template's, bit
     for bit."""
     import trimesh
@@ -244,12 +246,17 @@ def test_a_mesh_modelled_in_an_a_pose_plays_the_clips_as_the_template_does(human
     si, sq = SelfIntersections(ap.V, ap.F, 0.0), SurfaceQuality(ap.V, ap.F)
 
     def worst(pipe, frames):
-        Vs = [pipe.deform(q)[:len(ap.V)].copy() for q in frames[::8]]
-        return max(len(si.pairs(V)) for V in Vs), max(sq(V)["folds90"] for V in Vs)
+        Vs, turned = [], 0
+        for q in frames[::8]:
+            Vs.append(pipe.deform(q)[:len(ap.V)].copy())
+            turned += pipe.counts.get("turned", 0) > 0
+        return max(len(si.pairs(V)) for V in Vs), max(sq(V)["folds90"] for V in Vs), turned
 
-    for pipe in (Pipeline.preset(ap, "dqs"), Pipeline(ap)):
-        (pc, fc), (pr, fr) = worst(pipe, fa), worst(pipe, raw)
+    for pipe in (Pipeline.preset(ap, "dqs"), Pipeline(ap, turn_depth=0.0)):
+        (pc, fc, _), (pr, fr, _) = worst(pipe, fa), worst(pipe, raw)
         assert pr >= 100 and pc == 0 and fc <= fr, (pc, fc, pr, fr)
+    (pc, fc, tc), (pr, fr, tr) = worst(Pipeline(ap), fa), worst(Pipeline(ap), raw)
+    assert pc == 0 and fc <= fr and tc == 0 and tr >= 0.9 * len(raw[::8]), (pc, fc, tc, tr)
 
 
 def test_a_fitted_mesh_takes_cmu_mocap_through_its_templates_mapping(tmp_path):
