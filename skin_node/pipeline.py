@@ -159,7 +159,7 @@ PIPELINE_PARAMS = {
                             "hand, a shin, a foot) out of another part's flesh it lies deeper "
                             "in than this, in the limb's radii (skin to bone at rest), until "
                             "it lies no deeper (0: never)"),
-    "turn_shift": ParamSpec(float, 3.0, 0.0, 10.0, "the farthest the turn stage moves skin, "
+    "turn_shift": ParamSpec(float, 4.0, 0.0, 10.0, "the farthest the turn stage moves skin, "
                             "in the turned limb's radii (a limb that would need more is "
                             "turned this far and the contact does the rest)"),
     "bulge_limit": ParamSpec(float, 0.1, 0.001, 2.0, "the most skin stands out from its bone "

@@ -518,7 +518,7 @@ def test_a_hand_pressed_into_the_hip_leaves_no_spikes(humanoid):
 #: the spine and chest leaning sideways (by the second, degrees, in all):
 #: the pose drives a forearm and hand into the hip and thigh.
 LEANS = {"arms down, leaning 20": (1.4, 20.0), "arms down, leaning 30": (1.4, 30.0),
-         "arms down, leaning 36": (1.4, 36.0), "arms lowered, leaning 40": (1.2, 40.0),
+         "arms down, leaning 40": (1.4, 40.0), "arms lowered, leaning 40": (1.2, 40.0),
          "arms lowered, leaning 50": (1.2, 50.0), "arms straight down, leaning 20": (1.5, 20.0)}
 
 
@@ -532,14 +532,12 @@ def test_a_lean_with_the_arms_down_turns_the_arm_out_of_the_hip(humanoid, pose):
     """The forearm and hand driven into the hip and thigh deeper than the
     contact can crease: without the turn it flattens them onto one surface
     inside the body and keeps most of DQS's intersecting pairs (237, 217,
-    231, 188, 304 and 227 against 328, 324, 372, 214, 381 and 477) with
-    rougher skin (1.075 to 1.147 against 1.034 to 1.039) and sharp folds
-    DQS does not have (2, 16, 9 and 30 where it has none); turned out about
+    237, 188, 304 and 227 against 328, 324, 477, 214, 381 and 477) with
+    rougher skin (1.075 to 1.147 against 1.034 to 1.041) and sharp folds
+    DQS does not have (2, 12, 9 and 30 where it has none); turned out about
     the shoulder, none of either, roughness within 5% of DQS's (within
-    3.5%), no skin moved further than the turn's cap. Leaning 36 degrees the forearm's
-    turn about the shoulder is at its cap and the hand's about the elbow
-    takes it the rest of the way out (each turned its own least way out
-    about a joint that followed where it lay deep, 110 pairs stayed)."""
+    2.6%), no skin moved further than the turn's cap. Capped at 3 limb
+    radii (the default before), leaning 40 degrees kept 142 pairs."""
     ch = humanoid
     q = _lean(ch, *LEANS[pose])
     si, sq = SelfIntersections(ch.V, ch.F, 0.0), SurfaceQuality(ch.V, ch.F)
@@ -555,18 +553,21 @@ def test_a_lean_with_the_arms_down_turns_the_arm_out_of_the_hip(humanoid, pose):
     assert o["folds90"] <= d["folds90"], out
     assert o["roughness"] <= 1.05 * d["roughness"], out
     radius = ch.nearest_segments[1][:, 0][ch.rig.part == ch.skeleton.index("r_elbow")]
-    assert 0.0 < o["turn_mm"] <= 1e3 * 3.0 * np.median(radius) + 1e-6, out
+    cap = float(Pipeline(ch).params["turn_shift"])
+    assert 0.0 < o["turn_mm"] <= 1e3 * cap * np.median(radius) + 1e-6, out
 
 
 def test_the_turn_comes_in_and_holds_without_a_jump(humanoid):
     """Leaning from 14 to 60 degrees a degree a step, arms down: the turn
     starts from nothing, grows to about 100 mm at the hand by 28 degrees and
-    holds at its cap beyond, while the default's correction of DQS changes
-    by at most 11 mm a step up to 39 degrees (no intersecting pair there)
-    and 34 mm beyond, as much as without the turn (34 mm, as the contact
-    flattens the hand into the hip). Turned each its own least way out
-    about a pivot that followed where the hand lay deep, it jumped by up to
-    207 mm a step past its cap."""
+    holds at its cap (144-149 mm) from 33, while the default's correction of
+    DQS changes by at most 11 mm a step up to 46 degrees (no intersecting
+    pair there) but at 41, where the spine and chest pass the contact's
+    active_threshold and it starts testing them against each other (22 mm,
+    23 without the turn), and by at most 38 mm beyond 46, where the contact
+    flattens the hand into the hip. Turned each its own least way out about
+    a pivot that followed where the hand lay deep, it jumped by up to 207
+    mm a step past its cap."""
     ch = humanoid
     dq, ours = Pipeline.preset(ch, "dqs"), Pipeline(ch)
     last, steps, turned = None, [], []
@@ -589,7 +590,7 @@ def test_the_turn_crosses_less_on_random_poses(humanoid):
     """Poses no clip has (half the humanoid's joints turned at random, each
     channel up to 92 degrees, seeded): with the turn, fewer exact
     intersecting pairs and no more sharp folds summed than without it
-    (measured over these 30: 3,144 against 3,574 pairs, 464 against 474
+    (measured over these 30: 3,045 against 3,574 pairs, 473 against 474
     folds; DQS 6,775 and 321), the skin finite."""
     ch = humanoid
     sk = ch.skeleton
