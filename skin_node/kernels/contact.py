@@ -225,8 +225,8 @@ def _in_grid(origin, cell, dims, j, x, y, z, pad):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, onset, face0, face1,
-                  iterations, only, pre, clear, reach, apart):
+def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, onset, deep, fade,
+                  face0, face1, iterations, only, pre, clear, reach, apart):
     """The most violated contact constraint of vertex ``i`` of part ``a``
     among parts ``cand[c0:c1]``: (C, gradient x, y, z, the part); C >= 0
     when none is. ``pre[i]`` (6,) gets the rest points the two parts' fields
@@ -248,6 +248,12 @@ def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, onset, fa
     ``apart[a, b]``: the field read, the rigid bound that let it skip the
     carry, its distance from the part's grid or from its box (grown by
     ``reach``) plus ``reach``.
+
+    A pair coming in (``fade[a, b]`` < 1, :func:`contact_pairs`) lets skin
+    lie up to ``(1 - fade) * deep[b]`` deep in ``b``'s flesh (``deep``: how
+    deep each part's flesh goes): at the angle it is first tested the pair
+    pushes nothing, and its contact tightens as it turns on, instead of
+    pushing skin that already lay in the other flesh out in one frame.
     """
     origin, cell, dims, ptr, values = pf[0], pf[1], pf[2], pf[3], pf[4]
     px, py, pz = X[i, 0], X[i, 1], X[i, 2]
@@ -297,6 +303,7 @@ def worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box, margin, onset, fa
             # carried out of the grid: at least as far as the grid
             clear[i] = min(clear[i], sb if sb < FAR else
                            _grid_gap(origin, cell, dims, b, qbx, qby, qbz))
+        sb += (1.0 - fade[a, b]) * deep[b]
         if sb >= onset[i]:
             continue
         sa, vx, vy, vz, qax, qay, qaz = skinned_field(pf, Q, a, px, py, pz, xa, ya, za, n,
@@ -344,8 +351,8 @@ def _gated(sb, sa, ux, uy, uz, vx, vy, vz, margin, onset, pf, a, b, rx, ry, rz, 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
 def project_contacts(X, V0, verts, side, cand_ptr, cand, Q, Minv, pf, box, margin, onset,
-                     face0, face1, iterations, steps, moved, plane, hit, recheck, pre, clear,
-                     reach, apart):
+                     deep, fade, face0, face1, iterations, steps, moved, plane, hit, recheck,
+                     pre, clear, reach, apart):
     """Project every vertex of ``verts`` out of the other parts' flesh, up to
     ``steps`` Newton steps each (vertices are independent: Jacobi, so they
     run in parallel and the result does not depend on the threads). Parts to
@@ -387,8 +394,8 @@ def project_contacts(X, V0, verts, side, cand_ptr, cand, Q, Minv, pf, box, margi
         only = hit[i] if recheck else -1
         for _ in range(steps):
             C, gx, gy, gz, b = worst_contact(X, V0, i, a, cand, c0, c1, Q, Minv, pf, box,
-                                             margin, onset, face0, face1, iterations, only, pre,
-                                             clear, reach, apart)
+                                             margin, onset, deep, fade, face0, face1,
+                                             iterations, only, pre, clear, reach, apart)
             if C >= 0.0:
                 break
             hit[i] = b
@@ -432,8 +439,8 @@ def hold_planes(X, verts, moved, plane):
 
 
 @nb.njit(cache=True, nogil=True)
-def contact_pairs(X, order, pptr, M, Minv, has, lo, hi, reach, min_angle, box, cand_ptr,
-                  cand):
+def contact_pairs(X, order, pptr, M, Minv, has, lo, hi, reach, min_angle, width, box,
+                  cand_ptr, cand, fade):
     """The part pairs to test in pose ``M`` (J, 4, 4), and each part's box.
 
     ``box[b]`` (2, 3): part ``b``'s posed skin (vertices ``order[pptr[b]:
@@ -442,7 +449,11 @@ def contact_pairs(X, order, pptr, M, Minv, has, lo, hi, reach, min_angle, box, c
     has a field (``has``), ``a``'s posed skin box carried into ``b``'s rest
     frame overlaps ``b``'s grid (``lo``, ``hi``), and their bones turned at
     least ``min_angle`` from each other since rest. Writes the candidates of
-    part ``a`` to ``cand[cand_ptr[a]:cand_ptr[a + 1]]``; returns how many."""
+    part ``a`` to ``cand[cand_ptr[a]:cand_ptr[a + 1]]``; returns how many.
+    ``fade[a, b]`` (J, J) gets how far the pair's contact has come in: from 0
+    at ``min_angle`` to 1 at ``min_angle + width`` (smoothstep), so a pair
+    that starts being tested does not push its skin out all at once (1 for
+    every pair when ``min_angle`` is 0)."""
     J = M.shape[0]
     plo = np.full((J, 3), np.inf)
     phi = np.full((J, 3), -np.inf)
@@ -476,8 +487,12 @@ def contact_pairs(X, order, pptr, M, Minv, has, lo, hi, reach, min_angle, box, c
             for r in range(3):
                 for c in range(3):
                     tr += M[a, c, r] * M[b, c, r]
-            if math.acos(min(1.0, max(-1.0, 0.5 * (tr - 1.0)))) < min_angle:
+            angle = math.acos(min(1.0, max(-1.0, 0.5 * (tr - 1.0))))
+            if angle < min_angle:
                 continue
+            # no threshold, nothing to come in over: every pair in full
+            t = min(1.0, (angle - min_angle) / max(width, 1e-9)) if min_angle > 0.0 else 1.0
+            fade[a, b] = t * t * (3.0 - 2.0 * t)
             clo = np.full(3, np.inf)
             chi = np.full(3, -np.inf)
             for c in range(8):

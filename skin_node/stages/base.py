@@ -65,7 +65,8 @@ class Frame:
         so later stages do not swell skin into another part's; None without a
         contact stage. (Parts turned less than ``active_threshold`` from each
         other since rest are not tested: the contact takes them to be as far
-        apart as at rest.)
+        apart as at rest. Over the next ``active_fade`` of turn their contact
+        comes in, and the clearance still reads their flesh.)
     memo : dict
         Values of the pose alone that several stages need (posed bone
         segments of a joint region, say), computed once per frame.

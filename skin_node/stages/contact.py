@@ -106,6 +106,14 @@ class Contact(Stage):
         # skin's rest distance from its bone
         r0 = character.nearest_segments[1][:, 0]
         self._sag = self._edge ** 2 / (8.0 * np.maximum(r0, self._edge))
+        # how deep each part's flesh goes (its field's least value): a pair
+        # that has just started being tested lets skin lie that deep in it,
+        # and its fade takes that to none
+        _, _, dims, fptr, values = self.fields[:5]
+        self._deep = np.array([max(0.0, -float(values[fptr[b]:fptr[b + 1]].min()))
+                               if dims[b, 0] > 1 and fptr[b + 1] > fptr[b] else 0.0
+                               for b in range(J)])
+        self._fade = np.zeros((J, J))
         self._edge_max = float(self._edge.max())
         self._sag_max = float(self._sag.max())
         self._ptr, self._adj = r.adj_ptr, r.adj
@@ -141,7 +149,9 @@ class Contact(Stage):
     def pairs(self, fr: Frame):
         """The part pairs to test this frame (:func:`~skin_node.kernels.contact.contact_pairs`):
         ``(cand_ptr (J+1,), cand, Minv (J, 4, 4), box (J, 2, 3))``, parts
-        ``cand[cand_ptr[a]:cand_ptr[a+1]]`` for vertices of part ``a``."""
+        ``cand[cand_ptr[a]:cand_ptr[a+1]]`` for vertices of part ``a``; how
+        far each pair's contact has come in (``active_fade`` past
+        ``active_threshold``) is left in ``self._fade`` (J, J)."""
         J = self._J
         M = np.ascontiguousarray(fr.M)
         Minv = np.ascontiguousarray(np.linalg.inv(M))
@@ -149,9 +159,10 @@ class Contact(Stage):
         box = np.empty((J, 2, 3))
         cand_ptr = np.empty(J + 1, dtype=np.int64)
         cand = np.empty(J * J, dtype=np.int64)
+        self._fade[:] = 0.0
         n = contact_pairs(fr.surface, self._order, self._pptr, M, Minv, self.has, self._lo,
-                          self._hi, reach, float(self.params["active_threshold"]), box,
-                          cand_ptr, cand)
+                          self._hi, reach, float(self.params["active_threshold"]),
+                          float(self.params["active_fade"]), box, cand_ptr, cand, self._fade)
         return cand_ptr, cand[:n], Minv, box
 
     def __call__(self, fr: Frame) -> None:
@@ -183,7 +194,7 @@ class Contact(Stage):
         moved[:] = False
         # what both projections read besides the skin and the vertices to test
         args = (self.part, cand_ptr, cand, Q, Minv, self.fields, box, margin, onset,
-                FACE[0], FACE[1], CARRY_ITERATIONS, STEPS)
+                self._deep, self._fade, FACE[0], FACE[1], CARRY_ITERATIONS, STEPS)
         rounds = int(self.params["contact_rounds"])
         rings = self.rings("contact_rings")
         passes = self.passes("contact_smoothing")
