@@ -109,10 +109,9 @@ class Contact(Stage):
         # how deep each part's flesh goes (its field's least value): a pair
         # that has just started being tested lets skin lie that deep in it,
         # and its fade takes that to none
-        _, _, dims, fptr, values = self.fields[:5]
+        fptr, values = self.fields[3], self.fields[4]
         self._deep = np.array([max(0.0, -float(values[fptr[b]:fptr[b + 1]].min()))
-                               if dims[b, 0] > 1 and fptr[b + 1] > fptr[b] else 0.0
-                               for b in range(J)])
+                               if self.has[b] else 0.0 for b in range(J)])
         self._fade = np.zeros((J, J))
         self._edge_max = float(self._edge.max())
         self._sag_max = float(self._sag.max())
