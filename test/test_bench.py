@@ -400,3 +400,28 @@ def test_a_bvh_file_is_a_clip_retargeted_to_the_scene():
     assert len(ref.frames) > 100 and np.array_equal(mo.frames, ref.frames[::24])
     assert mo.fps == pytest.approx(ref.fps / 24)
     assert mo.frames.shape[1] == ch.n_channels
+
+
+def test_random_poses_lie_within_the_joint_limits():
+    """The benchmark's ``random_poses``: 30 poses, the same on every call,
+    each channel within its joint limits and about half of them turned, the
+    root at rest; none for a skeleton without limits."""
+    import dataclasses
+    from skin_node.bench.measure import make_motion, random_poses
+    from skin_node.motion import character_skeleton
+    sk = character_skeleton("humanoid")
+    P = random_poses(sk)
+    assert P.shape == (30, sk.n_channels)
+    assert np.array_equal(P, random_poses(sk))
+    lim = sk.limits.reshape(-1, 2)
+    rot = P[:, 3:]
+    assert np.all(rot >= lim[:, 0]) and np.all(rot <= lim[:, 1])
+    assert np.all(P[:, :3] == sk.rest_pose()[:3])
+    assert 0.4 < np.mean(rot != 0.0) < 0.6
+    assert len(np.unique(P, axis=0)) == 30
+    assert random_poses(dataclasses.replace(sk, limits=None)) is None
+
+    class Char:
+        skeleton = sk
+    mo = make_motion("random_poses", Char(), stride=4)
+    assert np.array_equal(mo.frames, P) and mo.dense is None

@@ -288,15 +288,42 @@ def clip_motion(name: str, clip_frames: np.ndarray, fps: float, stride: int = 1,
 
 #: Pose sweeps on the arm: (channel, last angle in degrees).
 SWEEPS = {"elbow_sweep": ("elbow_rz", 180.0), "twist_sweep": ("wrist_rx", 360.0)}
+#: ``random_poses``: how many, and the seed.
+RANDOM_POSES = (30, 7)
+
+
+def random_poses(skel, count: int = RANDOM_POSES[0], seed: int = RANDOM_POSES[1]):
+    """Poses no clip has, within the skeleton's joint limits: each rotation
+    channel drawn uniformly within its limits and kept with probability one
+    half (the others at rest), the root at rest; (count, C), seeded. None
+    for a skeleton without limits (every channel free over a full turn, as
+    a glTF file's): drawn over a full turn, its poses would say nothing of
+    a body's."""
+    lim = skel.limits.reshape(-1, 2)
+    if np.all(lim[:, 0] <= -np.pi + 1e-9) and np.all(lim[:, 1] >= np.pi - 1e-9):
+        return None
+    rng = np.random.default_rng(seed)
+    out = np.empty((count, skel.n_channels))
+    for t in range(count):
+        q = skel.rest_pose().copy()
+        k = len(q) - 3
+        q[3:] = rng.uniform(lim[:, 0], lim[:, 1]) * (rng.random(k) < 0.5)
+        out[t] = q
+    return out
 
 
 def make_motion(name: str, character, steps: int = 37, stride: int = 1,
                 max_frames: int | None = None) -> Motion | None:
-    """A clip by name (:data:`skin_node.CLIP_NAMES`) or a pose sweep
+    """A clip by name (:data:`skin_node.CLIP_NAMES`), a pose sweep
     (``elbow_sweep``: elbow 0..180 degrees, ``twist_sweep``: wrist twist
-    0..360 degrees, ``steps`` poses); None if the character lacks its channels.
+    0..360 degrees, ``steps`` poses) or ``random_poses``
+    (:func:`random_poses`: each its own, so no jitter is measured on them;
+    every one is kept); None if the character lacks its channels or limits.
     Clips keep every ``stride``-th frame, at most ``max_frames``."""
     skel = character.skeleton
+    if name == "random_poses":
+        frames = random_poses(skel)
+        return None if frames is None else Motion(name, frames[:max_frames or None])
     if name in SWEEPS:
         chan, top = SWEEPS[name]
         if chan not in skel.channel_names:
