@@ -38,10 +38,20 @@ PARTING_REACH = 3.0
 #: pair can leave before its weight is 0: with 4 the kick's crotch kept a
 #: ridge there; 5, 6 and 8 give it the same skin (to 1e-12 m).
 PARTING_MOST = 6
+#: A pair's growth ``g`` counts as ``s tanh(g / s)``, ``s`` PARTING_SPAN
+#: times the vertex's rest distance from its nearest bone: two far points
+#: that parted much, times a weight that falls to 0 over the reach, changed
+#: the loosening by centimetres between neighbouring vertices (the other
+#: thigh 300 mm further from skin above a knee than at rest, weighted 0.027
+#: and 0.003 at the two ends of an edge: 8.1 and 0.9 mm), and the skin the
+#: limit drew in followed it as a groove (docs/design.md). At 1 the side
+#: splits' crotch was drawn in and wrinkled; at 1.5 it is as before.
+PARTING_SPAN = 1.5
 
 
 @nb.njit(cache=True, nogil=True)
-def _parting_pairs(V, A, B, seg_joint, reach, most, ptr, fill, pa, pb, ta, tb, sep0, pw):
+def _parting_pairs(V, A, B, seg_joint, reach, most, span, ptr, fill, pa, pb, ta, tb, sep0, pw,
+                   cap):
     """:func:`parting_pairs`, counting (``fill`` False: ``ptr[i + 1]`` the
     count of vertex ``i``) or filling its rows from ``ptr``."""
     S = A.shape[0]
@@ -80,6 +90,7 @@ def _parting_pairs(V, A, B, seg_joint, reach, most, ptr, fill, pa, pb, ta, tb, s
                               - (A[b, c] + t[b] * (B[b, c] - A[b, c]))) ** 2
                     sep0[q] = math.sqrt(x)
                     pw[q] = na * nb_
+                    cap[q] = max(span * d0, 1e-9)
                 q += 1
         if not fill:
             ptr[i + 1] = q
@@ -93,35 +104,40 @@ def _reach_weight(d, d0, reach):
     return x * x * (3.0 - 2.0 * x)
 
 
-def parting_pairs(V, A, B, seg_joint, reach=PARTING_REACH, most=PARTING_MOST):
+def parting_pairs(V, A, B, seg_joint, reach=PARTING_REACH, most=PARTING_MOST,
+                  span=PARTING_SPAN):
     """For every vertex of the rest skin ``V``, the pairs of its nearest bone
     segments (rest ``A``-``B``; up to ``most``, within ``reach`` times the
     nearest's distance; on two different bones ``seg_joint``) whose parting
-    :func:`pull_bulge` reads: a CSR ``(ptr (n+1,), pa, pb, ta, tb, sep0, w)``,
-    each pair's segments, where along each the vertex's closest point lies,
-    those points' rest distance, and how much the pair counts (the product
-    of both segments' nearness, smooth in the vertex's position)."""
+    :func:`pull_bulge` reads: a CSR ``(ptr (n+1,), pa, pb, ta, tb, sep0, w,
+    cap)``, each pair's segments, where along each the vertex's closest point
+    lies, those points' rest distance, how much the pair counts (the product
+    of both segments' nearness, smooth in the vertex's position) and the
+    growth its loosening saturates at (``span`` times the vertex's rest
+    distance from its nearest segment)."""
     V = np.ascontiguousarray(V, dtype=np.float64)
     A, B = np.ascontiguousarray(A, dtype=np.float64), np.ascontiguousarray(B, dtype=np.float64)
     seg_joint = np.ascontiguousarray(seg_joint, dtype=np.int64)
     ptr = np.zeros(len(V) + 1, dtype=np.int64)
     none_i, none_f = np.zeros(0, np.int64), np.zeros(0)
-    _parting_pairs(V, A, B, seg_joint, float(reach), int(most), ptr, False, none_i, none_i,
-                   none_f, none_f, none_f, none_f)
+    _parting_pairs(V, A, B, seg_joint, float(reach), int(most), float(span), ptr, False,
+                   none_i, none_i, none_f, none_f, none_f, none_f, none_f)
     ptr = np.cumsum(ptr)
     m = int(ptr[-1])
     pa, pb = np.empty(m, np.int64), np.empty(m, np.int64)
-    ta, tb, sep0, w = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
-    _parting_pairs(V, A, B, seg_joint, float(reach), int(most), ptr, True, pa, pb, ta, tb, sep0, w)
-    return ptr, pa, pb, ta, tb, sep0, w
+    ta, tb, sep0, w, cap = np.empty(m), np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+    _parting_pairs(V, A, B, seg_joint, float(reach), int(most), float(span), ptr, True, pa, pb,
+                   ta, tb, sep0, w, cap)
+    return ptr, pa, pb, ta, tb, sep0, w, cap
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _parting(i, ptr, pa, pb, ta, tb, sep0, pw, A, B, enough):
+def _parting(i, ptr, pa, pb, ta, tb, sep0, pw, cap, A, B, enough):
     """How much further apart than at rest vertex ``i``'s nearest bones now
     hold it (:func:`parting_pairs`; posed segments ``A``-``B``): the largest
     growth of the distance between two of their points nearest it at rest,
-    weighted; 0 if none grew. Once that reaches ``enough``, the growth so far."""
+    saturating at the pair's ``cap`` and weighted; 0 if none grew. Once that
+    reaches ``enough``, the growth so far."""
     grow = 0.0
     for q in range(ptr[i], ptr[i + 1]):
         if grow >= enough:
@@ -130,18 +146,21 @@ def _parting(i, ptr, pa, pb, ta, tb, sep0, pw, A, B, enough):
         x = (A[a, 0] + u * (B[a, 0] - A[a, 0])) - (A[b, 0] + v * (B[b, 0] - A[b, 0]))
         y = (A[a, 1] + u * (B[a, 1] - A[a, 1])) - (A[b, 1] + v * (B[b, 1] - A[b, 1]))
         z = (A[a, 2] + u * (B[a, 2] - A[a, 2])) - (A[b, 2] + v * (B[b, 2] - A[b, 2]))
-        g = (math.sqrt(x * x + y * y + z * z) - sep0[q]) * pw[q]
+        g = math.sqrt(x * x + y * y + z * z) - sep0[q]
+        if g <= 0.0:
+            continue
+        g = cap[q] * math.tanh(g / cap[q]) * pw[q]
         if g > grow:
             grow = g
     return grow
 
 
 @nb.njit(cache=True, nogil=True)
-def parting(out, verts, ptr, pa, pb, ta, tb, sep0, pw, A, B):
+def parting(out, verts, ptr, pa, pb, ta, tb, sep0, pw, cap, A, B):
     """``out[k]``: the bones' parting around vertex ``verts[k]`` (what
     :func:`pull_bulge` loosens its limits by), for tests and pictures."""
     for k in range(verts.shape[0]):
-        out[k] = _parting(verts[k], ptr, pa, pb, ta, tb, sep0, pw, A, B, np.inf)
+        out[k] = _parting(verts[k], ptr, pa, pb, ta, tb, sep0, pw, cap, A, B, np.inf)
     return out
 
 
@@ -176,8 +195,8 @@ def _pull(X, i, seg, r0, hold, A, B, width, fade, pairs, allowed):
         return 0
     # (a parting as large as the most the vertex stands out loosens every
     # limit away: the rest of it need not be read)
-    d = _parting(i, pairs[0], pairs[1], pairs[2], pairs[3], pairs[4], pairs[5], pairs[6], A, B,
-                 over)
+    d = _parting(i, pairs[0], pairs[1], pairs[2], pairs[3], pairs[4], pairs[5], pairs[6], pairs[7],
+                 A, B, over)
     qx, qy, qz = px, py, pz
     moved = False
     for s in range(k):

@@ -49,9 +49,12 @@ class Bulge(Stage):
     near several bones (where its nearest bone changes) is held within the
     limits of each at once (:attr:`~skin_node.Character.nearest_segments`),
     loosened by how far its nearest bones parted since rest
-    (:func:`~skin_node.kernels.shape.parting_pairs`): skin spanning two limbs
-    that part (the crotch in a kick, a lunge or the splits) spans the gap
-    as under DQS; held to both it crumpled. Only skin whose
+    (:func:`~skin_node.kernels.shape.parting_pairs`; each pair's growth
+    saturating at :data:`~skin_node.kernels.shape.PARTING_SPAN` rest
+    distances, so far bones that parted much do not loosen skin a little way
+    off by centimetres): skin spanning two limbs that part (the crotch in a
+    kick, a lunge or the splits) spans the gap as under DQS; held to both it
+    crumpled. Only skin whose
     weights a bent joint splits is drawn in (where skinning blends, and so
     bulges), fading in where the smaller side's weight rises from 0.25% to 1.3%
     (fading in over the first tenth leaves the 150-degree elbow's outer skin
