@@ -54,11 +54,10 @@ class Bulge(Stage):
     distances, so far bones that parted much do not loosen skin a little way
     off by centimetres): skin spanning two limbs that part (the crotch in a
     kick, a lunge or the splits) spans the gap as under DQS; held to both it
-    crumpled. Only skin whose
-    weights a bent joint splits is drawn in (where skinning blends, and so
-    bulges), fading in where the smaller side's weight rises from 0.25% to 1.3%
-    (fading in over the first tenth leaves the 150-degree elbow's outer skin
-    2 mm further out).
+    crumpled. Only skin whose weights a bent joint splits is drawn in (where
+    skinning blends, and so bulges), fading in where the smaller side's
+    weight rises from 0.25% to 1.3% (fading in over the first tenth leaves
+    the 150-degree elbow's outer skin 2 mm further out).
     """
 
     name = "bulge"
