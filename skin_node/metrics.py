@@ -100,10 +100,15 @@ class SurfaceQuality:
         np.add.at(S, self._rows, V[self._cols])
         return np.linalg.norm(S / self._count - V, axis=1)
 
+    def turns(self, V: np.ndarray) -> np.ndarray:
+        """How far each interior edge's dihedral angle grew from rest in ``V``
+        (degrees; the edge between faces ``F[fa[k]]`` and ``F[fb[k]]``)."""
+        return self._dihedral(np.asarray(V, dtype=np.float64)) - self.turn0
+
     def __call__(self, V: np.ndarray) -> dict:
         """``folds90``, ``folds45``, ``roughness`` and ``roughness_p99`` of ``V``."""
         V = np.asarray(V, dtype=np.float64)
-        turn = self._dihedral(V) - self.turn0
+        turn = self.turns(V)
         u = self._umbrella(V)
         return {"folds90": int(np.count_nonzero(turn > 90.0)),
                 "folds45": int(np.count_nonzero(turn > 45.0)),

@@ -880,7 +880,7 @@ def test_far_bones_that_part_loosen_the_bulge_limit_without_a_groove(humanoid):
     on_thigh = thigh[sq.F[sq.fa]].all(axis=1) & thigh[sq.F[sq.fb]].all(axis=1)
 
     def bent(X):
-        return int(np.count_nonzero((sq._dihedral(X) - sq.turn0)[on_thigh] > 5.0))
+        return int(np.count_nonzero(sq.turns(X)[on_thigh] > 5.0))
 
     q = random_poses(ch.skeleton)[25]
     a, b = bent(ours.deform(q)[:n]), bent(full.deform(q)[:n])
