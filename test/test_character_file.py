@@ -85,7 +85,7 @@ def test_bad_files_name_the_file_and_the_problem(tmp_path, doc, message):
     ("empty", "cannot be read as a mesh|holds no triangles"),
     ("missing", "mesh file does not exist"),
     ("crossing", r"its 2 shells pass through each other at rest \(\d+ intersecting triangle "
-                 "pairs\): the deformer needs one skin"),
+                 r"pairs\): the deformer needs one skin"),
 ])
 def test_a_bad_mesh_names_the_mesh_file_and_the_yaml(tmp_path, mesh, message):
     """The mesh file is the one to fix: its path comes first, then the YAML's."""
