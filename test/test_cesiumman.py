@@ -478,8 +478,8 @@ def test_limb_turns_never_cross_more_on_random_poses(characters, weights):
     channel up to 92 degrees, seeded): with the turns (``untangle_shift``)
     no pose has more exact intersecting pairs than without them, the skin
     stays finite, and the sharp folds summed are no more (measured over
-    these 30: 800 against 824 pairs, 121 and 121 folds on automatic
-    weights; 1,920 against 1,927 and 608 and 608 on the file's)."""
+    these 30: 788 against 812 pairs, 114 and 114 folds on automatic
+    weights; 1,896 against 1,903 and 610 and 610 on the file's)."""
     from skin_node.kernels.intersect import SelfIntersections
     from skin_node.metrics import SurfaceQuality
     ch = characters[weights]
