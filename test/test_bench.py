@@ -425,3 +425,11 @@ def test_random_poses_lie_within_the_joint_limits():
         skeleton = sk
     mo = make_motion("random_poses", Char(), stride=4)
     assert np.array_equal(mo.frames, P) and mo.dense is None
+    # another seed: other poses, as well within the limits
+    other = make_motion("random_poses:13", Char())
+    assert other.name == "random_poses:13" and other.frames.shape == P.shape
+    assert np.array_equal(other.frames, random_poses(sk, seed=13))
+    assert not np.array_equal(other.frames, P)
+    assert np.all(other.frames[:, 3:] >= lim[:, 0]) and np.all(other.frames[:, 3:] <= lim[:, 1])
+    with pytest.raises(ValueError, match="random_poses:x: the seed"):
+        make_motion("random_poses:x", Char())

@@ -318,11 +318,16 @@ def make_motion(name: str, character, steps: int = 37, stride: int = 1,
     (``elbow_sweep``: elbow 0..180 degrees, ``twist_sweep``: wrist twist
     0..360 degrees, ``steps`` poses) or ``random_poses``
     (:func:`random_poses`: each its own, so no jitter is measured on them;
-    every one is kept); None if the character lacks its channels or limits.
+    every one is kept; ``random_poses:SEED`` draws them from another seed);
+    None if the character lacks its channels or limits.
     Clips keep every ``stride``-th frame, at most ``max_frames``."""
     skel = character.skeleton
-    if name == "random_poses":
-        frames = random_poses(skel)
+    if name == "random_poses" or name.startswith("random_poses:"):
+        seed = name.partition(":")[2] or str(RANDOM_POSES[1])
+        if not seed.isdigit():
+            raise ValueError(f"{name}: the seed after 'random_poses:' must be a whole "
+                             "number (e.g. random_poses:13)")
+        frames = random_poses(skel, seed=int(seed))
         return None if frames is None else Motion(name, frames[:max_frames or None])
     if name in SWEEPS:
         chan, top = SWEEPS[name]
