@@ -581,9 +581,9 @@ def _parser() -> argparse.ArgumentParser:
                         "file), each with @file for a glTF's own weights (automatic unless said)")
     r.add_argument("--clips", default="", help="clips and pose sweeps (elbow_bend, wrist_twist, "
                    "walk, squat, elbow_sweep, twist_sweep, random_poses: 30 seeded poses within "
-                   "the joint limits, random_poses:SEED from another seed) or a glTF character's animations "
-                   "(NAME or gltf:NAME), or BVH files retargeted to the character; default per "
-                   "character, a glTF's own animations")
+                   "the joint limits, random_poses:SEED from another seed) or a glTF "
+                   "character's animations (NAME or gltf:NAME), or BVH files retargeted to the "
+                   "character; default per character, a glTF's own animations")
     r.add_argument("--iterations", default="", help="sweep, e.g. 1,2,5,10,30")
     r.add_argument("--stiffness", default="", help="sweep, e.g. 0.2,0.5,0.8")
     r.add_argument("--tets", default="", help="sweep of tet counts, e.g. 6000,12000,24000")

@@ -289,19 +289,19 @@ class Inflate(Stage):
         # its layers fade to none over REGION_BORDER_RINGS rings inside that
         # border too, not only with the distance from its joint
         H = int(round(REGION_BORDER_RINGS * character.smoothing_scale))
-        inside = np.zeros(n, dtype=np.bool_)
+        # each edge (row, neighbour) whose neighbour is skin of some joint's
+        # region, not of none (where the distance already faded the layers out)
         rows = np.repeat(np.arange(n), np.diff(self._ptr))
+        regional = r.region[self._adj] >= 0
+        inside = np.zeros(n, dtype=np.bool_)
         for j, v in enumerate(self.verts):
             if not len(v) or H < 1:
                 continue
             inside[:] = False
             inside[v] = True
-            # skin of another joint's region, not skin of none (where the
-            # distance from the joint already faded the layers out)
-            out = ~inside[self._adj] & (r.region[self._adj] >= 0)
-            border = np.unique(rows[inside[rows] & out]).astype(np.int64)
+            border = np.unique(rows[inside[rows] & ~inside[self._adj] & regional])
             if len(border):
-                self.mob[j] = self.mob[j] * self._ramp(border, H)[v]
+                self.mob[j] = self.mob[j] * self._ramp(border.astype(np.int64), H)[v]
         self._cross = CoarseCrossings(character, float(params["coarse_below"]))
         if self._cross:
             # the pairs of coarse skin's triangles that share an edge: those
