@@ -26,7 +26,9 @@ BISECT = 8
 #: frames 169 -> 218 mm). CesiumMan's smallest part has 27.
 MIN_VERTICES = 20
 #: The first test of a pair reads a sample of a part's vertices, one a cube
-#: SAMPLE of its limb radius across; a pair whose sample lies no deeper than
+#: SAMPLE of its limb radius across (of SIBLING_DEPTH of it for a limb's top
+#: part, which may lie less deep: the thighs, which touch, were read in full
+#: every frame of the walk); a pair whose sample lies no deeper than
 #: ``turn_depth`` less the farthest any vertex is from the sample (or stays
 #: that far clear) cannot lie deeper (the field is a distance), and only the
 #: others are read in full.
@@ -47,6 +49,10 @@ SAMPLE = 0.5
 #: further past them folded the hips' skin (3,586 intersecting pairs against
 #: 3,028 without the top parts' turn; CesiumMan's 852 against 788).
 SIBLING_DEPTH = 0.75
+#: A limb's top part turns out of a sibling at least TWIN of its size (the
+#: other thigh, the other upper arm), not out of a larger one (the spine
+#: beside the thighs, the upper arms beside the neck).
+TWIN = 0.9
 
 
 def _rotation(axis: np.ndarray, angle: float, o: np.ndarray) -> np.ndarray:
@@ -164,10 +170,11 @@ class Turn(Stage):
             for b in range(J):
                 # another part it meets at no joint and does not carry, larger
                 # (of two the same size, the first turns); a limb's top part,
-                # its sibling only (SIBLING_DEPTH)
+                # its twin only (a sibling its size: SIBLING_DEPTH)
                 if (b == a or not field[b] or par[a] == b or par[b] == a or below[a, b]
                         or (size[a], a) >= (size[b], b)
-                        or (self._top[a] and par[b] != par[a])):
+                        or (self._top[a]
+                            and (par[b] != par[a] or size[a] < TWIN * size[b]))):
                     continue
                 pairs.append((a, b))
         self._pairs = np.array(pairs, dtype=np.int64).reshape(-1, 2)
@@ -186,7 +193,7 @@ class Turn(Stage):
             if not len(v):
                 sample.append(v)
                 continue
-            cell = max(SAMPLE * self._radius[j], 1e-9)
+            cell = max(SAMPLE * self._limit(j), 1e-9)
             key = np.floor(self._V0[v] / cell).astype(np.int64)
             _, first = np.unique(key, axis=0, return_index=True)
             keep = v[np.sort(first)]
