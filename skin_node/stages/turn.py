@@ -33,8 +33,8 @@ MIN_VERTICES = 20
 #: that far clear) cannot lie deeper (the field is a distance), and only the
 #: others are read in full.
 SAMPLE = 0.5
-#: A limb's top part (a thigh, an upper arm) turns only out of its sibling
-#: (the other thigh), about its own joint, once it lies deeper than
+#: A limb's top part (a thigh, an upper arm) turns only out of its twin
+#: (the other thigh, :data:`TWIN`), about its own joint, once it lies deeper than
 #: SIBLING_DEPTH ``turn_depth``s in it, along that part's field gradient.
 #: Two limbs side by side meet along their length, a longer crease than a
 #: hand's in a hip: a thigh crossed over the other (``random_poses`` number
@@ -114,8 +114,8 @@ class Turn(Stage):
     clip's frames, the test poses beyond them but one) stay below
     ``turn_depth`` and are skinned as posed.
 
-    A limb's top part (a thigh, an upper arm) is tested against its sibling
-    alone (a thigh against the other thigh), from SIBLING_DEPTH
+    A limb's top part (a thigh, an upper arm) is tested against its twin
+    alone (a thigh against the other thigh, :data:`TWIN`), from SIBLING_DEPTH
     ``turn_depth``s deep, and turns about its own joint along the other
     part's field gradients, within that joint's limits (:data:`SIBLING_DEPTH`).
 
@@ -170,7 +170,7 @@ class Turn(Stage):
             for b in range(J):
                 # another part it meets at no joint and does not carry, larger
                 # (of two the same size, the first turns); a limb's top part,
-                # its twin only (a sibling its size: SIBLING_DEPTH)
+                # its twin only (a sibling about its size: TWIN)
                 if (b == a or not field[b] or par[a] == b or par[b] == a or below[a, b]
                         or (size[a], a) >= (size[b], b)
                         or (self._top[a]
