@@ -221,6 +221,12 @@ class Skeleton:
             B = np.einsum("sij,sj->si", Ms[:, :3, :3], B) + Ms[:, :3, 3]
         return seg_joint, A, B
 
+    def limited(self) -> np.ndarray:
+        """(J,) whether each joint's rotation is limited: some channel of it not
+        free over a full turn (a glTF file's skeleton gives no limits)."""
+        lim = self.limits
+        return ~np.all((lim[:, :, 0] <= -np.pi + 1e-9) & (lim[:, :, 1] >= np.pi - 1e-9), axis=1)
+
     def local_rotations(self, q: np.ndarray) -> np.ndarray:
         """(J, 3, 3) pose rotations ``R(q_j)`` (without the rest rotation)."""
         q = np.asarray(q, dtype=np.float64)

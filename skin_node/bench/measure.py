@@ -299,9 +299,9 @@ def random_poses(skel, count: int = RANDOM_POSES[0], seed: int = RANDOM_POSES[1]
     for a skeleton without limits (every channel free over a full turn, as
     a glTF file's): drawn over a full turn, its poses would say nothing of
     a body's."""
-    lim = skel.limits.reshape(-1, 2)
-    if np.all(lim[:, 0] <= -np.pi + 1e-9) and np.all(lim[:, 1] >= np.pi - 1e-9):
+    if not skel.limited().any():
         return None
+    lim = skel.limits.reshape(-1, 2)
     rng = np.random.default_rng(seed)
     out = np.empty((count, skel.n_channels))
     for t in range(count):

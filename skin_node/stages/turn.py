@@ -156,11 +156,9 @@ class Turn(Stage):
         # a limb's top part: its parent branches or is the root
         self._top = np.array([par[a] >= 0 and (par[a] == 0 or kids[par[a]] != 1)
                               for a in range(J)])
-        # joints with limits (a glTF's skeleton has none: every channel free
-        # over a full turn); a top part turns within them, so only there
-        lim = np.asarray(sk.limits, dtype=np.float64)
-        limited = ~np.all((lim[:, :, 0] <= -np.pi + 1e-9) & (lim[:, :, 1] >= np.pi - 1e-9),
-                          axis=1)
+        # a top part turns within its joint's limits, so only where it has
+        # some (a glTF's skeleton has none)
+        limited = sk.limited()
         for a in range(J):
             # not the root, carried by a bone with flesh of its own, of
             # MIN_VERTICES or more, and a limb's top part only within limits
@@ -210,7 +208,7 @@ class Turn(Stage):
         self._seg_joint, self._segA, self._segB = sk.bone_segments()
         self._rest = np.asarray(sk.rest_positions, dtype=np.float64)
         self._rest_rot = np.asarray(sk.rest_rotations, dtype=np.float64)
-        self._limits = np.asarray(sk.limits, dtype=np.float64)
+        self._limits = sk.limits
 
     def _limit(self, a):
         """How deep parts ``a`` may lie in another's flesh, in ``turn_depth``s
