@@ -123,6 +123,10 @@ PIPELINE_PARAMS = {
                             "the mush smooths"),
     "mush_passes": ParamSpec(int, 8, 0, 100, "Laplacian passes of the mush over the posed "
                              "skin (its rest detail comes back; 0 leaves it alone)"),
+    "mush_relax": ParamSpec(int, 2, 0, 50, "passes of tangential relaxation over the mush's "
+                            "skin: each vertex slides along the surface towards where its "
+                            "one ring puts it at rest, so triangles crushed into slivers at "
+                            "a crease's bottom get their shape back (0: none)"),
     "relief_limit": ParamSpec(float, 0.1, 0.0, 10.0, "the most a vertex's move by the "
                               "contact or the inflation may stand out from its neighbours' "
                               "mean move, in mean edges (cuts spikes and creases a vertex "

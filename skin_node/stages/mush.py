@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels.smoothing import (gather_weights, laplacian_smooth, restore_detail,
-                                 ring_layout, vertex_faces)
+from ..kernels.smoothing import (gather_weights, laplacian_smooth, relax_tangents,
+                                 rest_tangents, restore_detail, ring_layout, vertex_faces)
 from ..kernels.shape import clearance_caps, dihedral_angles, hold_clear, most_bent
 from ..metrics import interior_edges
 from .base import Frame, Stage
@@ -18,6 +18,9 @@ from .shape import CLEAR_SHARE
 #: 27) and the 43k's 14 (DQS 21); faded, 21 and 1 (see docs/design.md).
 DETAIL_BEND = 30.0
 DETAIL_RAMP = 30.0
+#: How far one pass of the tangential relaxation (``mush_relax``) slides a
+#: vertex of full strength towards where its ring puts it at rest.
+RELAX_STEP = 0.5
 
 
 class Mush(Stage):
@@ -81,6 +84,9 @@ class Mush(Stage):
         self._edges = (order // 6).astype(np.int64)
         self._seen = np.zeros(len(fa), dtype=np.bool_)
         self._Y, self._grew = np.empty((n, 3)), np.zeros(n)
+        # where each vertex's one ring puts it at rest, along its surface
+        self._rest_tangents = rest_tangents(self.V0, self.F, self._vf_ptr, self._vf,
+                                            self._first, self._ptr, self._adj, np.empty((n, 2)))
 
     def __call__(self, fr: Frame) -> None:
         passes = self.passes("mush_passes")
@@ -119,6 +125,14 @@ class Mush(Stage):
             fr.counts["mush_held"] = hold_clear(
                 X, zone, start, clearance_caps(fr.clearance, self._unscaled, CLEAR_SHARE,
                                                self._near))
+        relax = int(self.params["mush_relax"])
+        if relax:
+            # the triangles at a crease's bottom, crushed into slivers that
+            # turn their edges past 90 degrees, get their rest shape back by
+            # sliding along the skin (its shape stays)
+            relax_tangents(X, zone, kw * self.resolved[zone], self.F, self._vf_ptr, self._vf,
+                           self._first, self._ptr, self._adj, self._rest_tangents, RELAX_STEP,
+                           relax, np.empty((len(zone), 3)))
         fr.counts["mush_vertices"] = len(zone)
 
     def _fade_folds(self, X: np.ndarray, Y: np.ndarray, zone: np.ndarray) -> int:
