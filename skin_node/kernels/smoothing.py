@@ -99,29 +99,35 @@ def _ring_mean_offset(X, ptr, adj, i):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _worst_face(X, F, vf_ptr, vf, i, mx, my, mz, nx, ny, nz):
-    """The least cosine between normal ``n`` and the unit normals of vertex
-    ``i``'s faces on ``X`` with the vertex moved by ``m``."""
-    worst = 1.0
+def _face_cos(ax, ay, az, bx, by, bz, cx, cy, cz, nx, ny, nz):
+    """The cosine between triangle ``abc``'s normal and ``n`` (-1 if degenerate)."""
+    ux, uy, uz = bx - ax, by - ay, bz - az
+    vx, vy, vz = cx - ax, cy - ay, cz - az
+    fx, fy, fz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    s = np.sqrt(fx * fx + fy * fy + fz * fz)
+    return (fx * nx + fy * ny + fz * nz) / s if s > 1e-300 else -1.0
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _turns_a_face_over(X, F, vf_ptr, vf, i, mx, my, mz, nx, ny, nz):
+    """Whether moving vertex ``i`` by ``m`` turns the worst of its faces on
+    ``X`` further from normal ``n`` (the least cosine between them falls)."""
+    before = after = 1.0
     for q in range(vf_ptr[i], vf_ptr[i + 1]):
         f = vf[q]
         a, b, c = F[f, 0], F[f, 1], F[f, 2]
         ax, ay, az = X[a, 0], X[a, 1], X[a, 2]
         bx, by, bz = X[b, 0], X[b, 1], X[b, 2]
         cx, cy, cz = X[c, 0], X[c, 1], X[c, 2]
+        before = min(before, _face_cos(ax, ay, az, bx, by, bz, cx, cy, cz, nx, ny, nz))
         if a == i:
             ax, ay, az = ax + mx, ay + my, az + mz
         elif b == i:
             bx, by, bz = bx + mx, by + my, bz + mz
         else:
             cx, cy, cz = cx + mx, cy + my, cz + mz
-        ux, uy, uz = bx - ax, by - ay, bz - az
-        vx, vy, vz = cx - ax, cy - ay, cz - az
-        fx, fy, fz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
-        s = np.sqrt(fx * fx + fy * fy + fz * fz)
-        cos = (fx * nx + fy * ny + fz * nz) / s if s > 1e-300 else -1.0
-        worst = min(worst, cos)
-    return worst
+        after = min(after, _face_cos(ax, ay, az, bx, by, bz, cx, cy, cz, nx, ny, nz))
+    return after < before
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
@@ -147,7 +153,7 @@ def relax_tangents(X, verts, weight, F, vf_ptr, vf, first, ptr, adj, rest, step,
     never along its normal: the shape stays, the triangles regain their rest
     shape. Where the neighbourhood moved rigidly nothing moves (to rounding).
     A vertex keeps its place where its move would turn the worst of its faces
-    further from its normal (:func:`_worst_face`): on skin crushed flat its
+    further from its normal (:func:`_turns_a_face_over`): on skin crushed flat its
     frame can point anywhere, and unguarded, a 3 mm slide on CesiumMan's head
     at a pose far past its joints' reach turned regular 15 mm triangles over.
     ``buf`` (len(verts), 3) is scratch; the result does not depend on the
@@ -168,8 +174,7 @@ def relax_tangents(X, verts, weight, F, vf_ptr, vf, first, ptr, adj, rest, step,
             mx = s * (dx - d * nx - u * tx - v * bx)
             my = s * (dy - d * ny - u * ty - v * by)
             mz = s * (dz - d * nz - u * tz - v * bz)
-            if _worst_face(X, F, vf_ptr, vf, i, mx, my, mz, nx, ny, nz) < \
-                    _worst_face(X, F, vf_ptr, vf, i, 0.0, 0.0, 0.0, nx, ny, nz):
+            if _turns_a_face_over(X, F, vf_ptr, vf, i, mx, my, mz, nx, ny, nz):
                 continue
             buf[k, 0], buf[k, 1], buf[k, 2] = mx, my, mz
         for k in nb.prange(verts.shape[0]):
