@@ -635,7 +635,7 @@ def test_the_turn_comes_in_and_holds_without_a_jump(humanoid):
     starts from nothing, grows to about 100 mm at the hand by 28 degrees and
     holds at its cap (144-149 mm) from 33, while the default's correction of
     DQS changes by at most 11 mm a step up to 46 degrees (no intersecting
-    pair there), and by at most 38 mm beyond, where the contact flattens the
+    pair there), and by at most 36 mm beyond, where the contact flattens the
     hand into the hip. Turned each its own least way out about a pivot that
     followed where the hand lay deep, it jumped by up to 207 mm a step past
     its cap; before a contact pair came in over a turn, the step onto 41
