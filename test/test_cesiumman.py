@@ -246,6 +246,36 @@ def test_relief_cap_takes_the_spikes_out_of_coarse_contact(monkeypatch, characte
         assert out[w, "ours"]["pairs"] <= share * out[w, "dqs"]["pairs"], out
 
 
+def test_the_tangential_relaxation_leaves_crushed_skin_where_it_would_turn_it_over(
+        monkeypatch, characters):
+    """A pose far past CesiumMan's joints' reach (rotation channels drawn
+    within +-92 degrees, as the benchmark's stress poses are; number 9 of
+    seed 7) crushes its head's skin flat, where a vertex's frame can point
+    anywhere. Sliding that skin along such a frame turned regular 15 mm
+    triangles over: 44 intersecting pairs and 18 sharp folds, against 28 and
+    7 with no relaxation. Guarded (a vertex keeps its place where its slide
+    would turn the worst of its faces further from its normal): 28 and 9."""
+    import skin_node.stages.mush as mush
+    from skin_node.kernels.intersect import SelfIntersections
+    from skin_node.metrics import SurfaceQuality
+    ch = characters["automatic"]
+    n, skel = len(ch.V), ch.skeleton
+    rng = np.random.default_rng(7)
+    for _ in range(10):
+        q = skel.rest_pose().copy()
+        k = len(q) - 3
+        q[3:] = rng.uniform(-1.6, 1.6, k) * (rng.random(k) < 0.5)
+    si, sq = SelfIntersections(ch.V, ch.F, 0.0), SurfaceQuality(ch.V, ch.F)
+    out = {}
+    for name, guard, relax in (("off", True, 0), ("unguarded", False, 2), ("guarded", True, 2)):
+        monkeypatch.setattr(mush, "RELAX_GUARD", guard)
+        X = Pipeline(ch, mush_relax=relax).deform(q)[:n].copy()
+        out[name] = (len(si.pairs(X)), sq(X)["folds90"])
+    (p0, f0), (p1, f1), (p2, f2) = out["off"], out["unguarded"], out["guarded"]
+    assert p1 >= p0 + 8 and f1 >= f0 + 6, out
+    assert p2 <= p0 and f2 <= f0 + 3, out
+
+
 @pytest.mark.parametrize("weights,clip", [("automatic", "punch"), ("file", "walk")])
 def test_inflation_is_withheld_where_it_would_fold_or_cross(monkeypatch, characters, motions,
                                                             weights, clip):

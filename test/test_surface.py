@@ -347,7 +347,7 @@ def _relax(X, V, F, verts, passes, step=0.5):
     out = X.copy()
     verts = np.sort(verts).astype(np.int64)
     relax_tangents(out, verts, np.ones(len(verts)), F, vf_ptr, vf, first, ptr, adj, rest, step,
-                   passes, np.empty((len(verts), 3)))
+                   passes, True, np.empty((len(verts), 3)))
     return out
 
 

@@ -145,17 +145,19 @@ def rest_tangents(V0, F, vf_ptr, vf, first, ptr, adj, out):
 
 
 @nb.njit(cache=True, nogil=True, parallel=True)
-def relax_tangents(X, verts, weight, F, vf_ptr, vf, first, ptr, adj, rest, step, passes, buf):
+def relax_tangents(X, verts, weight, F, vf_ptr, vf, first, ptr, adj, rest, step, passes, guard,
+                   buf):
     """Tangential relaxation of ``verts`` on ``X``, in place, ``passes``
     Jacobi passes: each vertex slides in its tangent plane (its faces'
     normal) by ``step * weight[k]`` of the way to where its one ring's mean
     puts it at rest (``rest``, :func:`rest_tangents`, carried in its frame),
     never along its normal: the shape stays, the triangles regain their rest
     shape. Where the neighbourhood moved rigidly nothing moves (to rounding).
-    A vertex keeps its place where its move would turn the worst of its faces
-    further from its normal (:func:`_turns_a_face_over`): on skin crushed flat its
-    frame can point anywhere, and unguarded, a 3 mm slide on CesiumMan's head
-    at a pose far past its joints' reach turned regular 15 mm triangles over.
+    With ``guard``, a vertex keeps its place where its move would turn the
+    worst of its faces further from its normal (:func:`_turns_a_face_over`):
+    on skin crushed flat its frame can point anywhere, and unguarded, a 3 mm
+    slide on CesiumMan's head at a pose far past its joints' reach turned
+    regular 15 mm triangles over.
     ``buf`` (len(verts), 3) is scratch; the result does not depend on the
     threads."""
     for _ in range(passes):
@@ -174,7 +176,7 @@ def relax_tangents(X, verts, weight, F, vf_ptr, vf, first, ptr, adj, rest, step,
             mx = s * (dx - d * nx - u * tx - v * bx)
             my = s * (dy - d * ny - u * ty - v * by)
             mz = s * (dz - d * nz - u * tz - v * bz)
-            if _turns_a_face_over(X, F, vf_ptr, vf, i, mx, my, mz, nx, ny, nz):
+            if guard and _turns_a_face_over(X, F, vf_ptr, vf, i, mx, my, mz, nx, ny, nz):
                 continue
             buf[k, 0], buf[k, 1], buf[k, 2] = mx, my, mz
         for k in nb.prange(verts.shape[0]):

@@ -21,6 +21,10 @@ DETAIL_RAMP = 30.0
 #: How far one pass of the tangential relaxation (``mush_relax``) slides a
 #: vertex of full strength towards where its ring puts it at rest.
 RELAX_STEP = 0.5
+#: A vertex the relaxation would slide so that the worst of its faces turns
+#: further from its normal keeps its place (on skin crushed flat its frame
+#: can point anywhere; see :func:`~skin_node.kernels.smoothing.relax_tangents`).
+RELAX_GUARD = True
 
 
 class Mush(Stage):
@@ -132,7 +136,7 @@ class Mush(Stage):
             # sliding along the skin (its shape stays)
             relax_tangents(X, zone, kw * self.resolved[zone], self.F, self._vf_ptr, self._vf,
                            self._first, self._ptr, self._adj, self._rest_tangents, RELAX_STEP,
-                           relax, np.empty((len(zone), 3)))
+                           relax, RELAX_GUARD, np.empty((len(zone), 3)))
         fr.counts["mush_vertices"] = len(zone)
 
     def _fade_folds(self, X: np.ndarray, Y: np.ndarray, zone: np.ndarray) -> int:
