@@ -154,6 +154,10 @@ PIPELINE_PARAMS = {
                                  "folds its edges)"),
     "untangle_reach": ParamSpec(float, 2.0, 0.0, 20.0, "coarse skin this near another part's "
                                 "flesh is tested, in mean edges"),
+    "untangle_unfold": ParamSpec(int, 2, 0, 50, "Laplacian passes over the corners of coarse "
+                                 "skin's triangles that cross others a few rings away (skin "
+                                 "skinning folded through itself at a joint); a patch keeps "
+                                 "them where they leave fewer crossings (0: none)"),
     "untangle_shift": ParamSpec(float, 3.0, 0.0, 10.0, "the farthest one turn moves skin "
                                 "when a coarse limb still passing through another part (after "
                                 "the untangle's rounds, or inflation) is turned out of it "

@@ -9,7 +9,8 @@ import numpy as np
 from ..kernels.collision import fit_tree
 from ..kernels.intersect import SelfIntersections, crossing_pairs, node_parts
 from ..kernels.shape import bent_edges
-from ..kernels.smoothing import EVEN, laplacian_smooth, ring_layout, vertex_faces
+from ..kernels.smoothing import EVEN, gather_weights, laplacian_smooth, ring_layout, vertex_faces
+from ..kernels.topology import patches, ring_distance
 from ..kernels.untangle import push_apart
 from ..metrics import interior_edges, unit_normals
 from .base import Frame, Stage
@@ -34,6 +35,12 @@ SHIFT_BISECT = 4
 #: A limb is turned about the first joint up its chain far enough that the
 #: largest move (``untangle_shift``) turns it by at most MAX_TURN radians.
 MAX_TURN = 0.4
+#: Two crossing triangles of coarse skin with corners at most CRUMPLE_RINGS
+#: rings apart are a crumple (skin that skinning folded through itself at a
+#: joint), which :class:`CoarseCrumples` smooths out; crossings further
+#: apart are two parts' skins meeting, which the rounds push apart. Every
+#: pair the stage left on CesiumMan's file-weighted clips lay within 3 rings.
+CRUMPLE_RINGS = 3
 
 
 def _turn(R: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
@@ -130,6 +137,107 @@ class CoarseCrossings:
             return self.pairs(X, query, self.inq, True)
         finally:
             self.inq[query] = False
+
+
+class CoarseCrumples:
+    """Coarse skin folded through itself, smoothed out where that parts it.
+
+    Where a coarse limb's skinning blends its weights over an edge or two
+    (CesiumMan's file weights at the shoulders, 40 mm triangles), a bent
+    joint folds its skin through itself: triangles a ring or two apart
+    cross, and DQS leaves the same crumples. The mush would round them, but
+    on skin that coarse a few rings reach across the joint and lose its
+    volume (:class:`~skin_node.stages.mush.Mush`). Here only the crumple
+    itself moves: the corners of coarse triangles that cross another
+    triangle within :data:`CRUMPLE_RINGS` rings get ``passes`` Laplacian
+    passes of their positions, their neighbours held, and each connected
+    patch of them keeps the smoothing only where it leaves fewer crossing
+    pairs on its triangles (exact tests), else it stays as it was. The
+    volume the smoothing takes, inflation (after it) gives back. Falsy where
+    no part is coarse (``cross``, whose tree it searches too): it builds
+    nothing then."""
+
+    def __init__(self, character, cross: CoarseCrossings):
+        self.F, self.coarse = cross.F, cross.coarse
+        # the crossing search's tree (each search refits it to the skin)
+        self._si = cross._si
+        if not cross:
+            return
+        # every triangle its own part, so the coarse crossing search
+        # (:func:`~skin_node.kernels.intersect.crossing_pairs`) finds every
+        # pair that shares no corner, a part's with itself too
+        self._own = np.arange(len(self.F), dtype=np.int64)
+        self._npart = node_parts(self._si.tree, self._si.tris, self._own)
+        self._inq = np.zeros(len(self.F), dtype=np.bool_)
+        self._out = np.empty((256, 2), dtype=np.int64)
+        r = character.rig
+        self._ptr, self._adj, self._w_adj = r.adj_ptr, r.adj, character.edge_weights
+        n = len(character.V)
+        self._hops = np.full(n, 1 << 30, dtype=np.int64)
+        self._queue = np.empty(n, dtype=np.int64)
+        self._label = np.full(n, -2, dtype=np.int64)
+
+    def __bool__(self) -> bool:
+        return self._si is not None
+
+    def _pairs(self, X: np.ndarray, query: np.ndarray) -> np.ndarray:
+        """The crossing pairs (k, 2) with a triangle of ``query``."""
+        si, t = self._si, self._si.tree
+        fit_tree(X, t, si.fit, True)
+        lo, hi, tlo, thi, _ = si.fit
+        self._inq[query] = True
+        try:
+            while True:
+                n = crossing_pairs(X, self.F, query, self._inq, self._own, self._npart, t.roots,
+                                   t.child, t.first, t.count, t.slot, si.tris, lo, hi, tlo, thi,
+                                   self._out)
+                if n <= len(self._out):
+                    return self._out[:n].copy()
+                self._out = np.empty((2 * n, 2), dtype=np.int64)
+        finally:
+            self._inq[query] = False
+
+    def _near(self, f: int, g: int) -> bool:
+        """Whether triangles ``f`` and ``g`` have corners within
+        :data:`CRUMPLE_RINGS` rings of each other."""
+        hops, queue = self._hops, self._queue
+        reached = ring_distance(self.F[f], self._ptr, self._adj, hops, CRUMPLE_RINGS + 1, queue)
+        near = bool((hops[self.F[g]] <= CRUMPLE_RINGS).any())
+        hops[queue[:reached]] = 1 << 30
+        return near
+
+    def _by_patch(self, P: np.ndarray, m: int) -> np.ndarray:
+        """(m,) how many pairs of ``P`` have a triangle with a corner in each
+        patch (``self._label``)."""
+        count = np.zeros(m, dtype=np.int64)
+        for row in self._label[self.F[P]].reshape(len(P), 6):
+            count[np.unique(row[row >= 0])] += 1
+        return count
+
+    def __call__(self, X: np.ndarray, passes: int) -> int:
+        """Smooths the crumples of ``X`` in place; returns how many vertices
+        moved."""
+        P = self._pairs(X, self.coarse)
+        P = P[[self._near(f, g) for f, g in P]] if len(P) else P
+        if not len(P):
+            return 0
+        zone = np.unique(self.F[P].ravel())
+        label = self._label
+        label[zone] = -1
+        m = patches(zone, self._ptr, self._adj, label, self._queue)
+        # the triangles the smoothing moves: the pairs counted on each patch
+        query = np.flatnonzero((label[self.F] >= 0).any(axis=1))
+        before = self._by_patch(self._pairs(X, query), m)
+        start = X[zone]
+        ring, loc, lptr, lnbr = ring_layout(zone, self._ptr, self._adj)
+        lw = gather_weights(zone, self._ptr, self._w_adj, lptr)
+        laplacian_smooth(X, X, False, ring, loc, lptr, lnbr, lw, 0.5, EVEN, passes,
+                         np.empty((len(ring), 3)), np.empty((len(zone), 3)))
+        after = self._by_patch(self._pairs(X, query), m)
+        undo = (after >= before)[label[zone]]
+        X[zone[undo]] = start[undo]
+        label[zone] = -2
+        return int(len(zone) - undo.sum())
 
 
 class LimbTurn:
@@ -370,7 +478,9 @@ class Untangle(Stage):
 
     What the rounds leave is flesh through flesh the skin cannot show as a
     dent: there the limb is turned out of the other part
-    (:class:`LimbTurn`), where a turn parts them.
+    (:class:`LimbTurn`), where a turn parts them. Last, coarse skin that
+    skinning folded through itself at a joint, contact or none, is smoothed
+    out where that parts it (:class:`CoarseCrumples`, ``untangle_unfold``).
 
     The exact test is the one that counts the intersecting pairs
     :mod:`skin_node.bench` reports, so those counts do not grade this stage
@@ -385,6 +495,7 @@ class Untangle(Stage):
         self._cross = CoarseCrossings(character, float(params["coarse_below"]))
         self.F, self.coarse = self._cross.F, self._cross.coarse
         self._edge = character.mean_edges
+        self._crumples = CoarseCrumples(character, self._cross)
         if not self._cross:
             return          # nothing coarse: the stage tests nothing
         n, m = len(character.V), len(self.F)
@@ -442,6 +553,12 @@ class Untangle(Stage):
     def __call__(self, fr: Frame) -> None:
         if not self._cross:
             return
+        self._untangle(fr)
+        unfold = int(self.params["untangle_unfold"])
+        fr.counts["untangle_unfolded"] = self._crumples(fr.surface, unfold) if unfold else 0
+
+    def _untangle(self, fr: Frame) -> None:
+        """The rounds of pushes, then the turns of limbs left crossing."""
         query = self._query(fr)
         fr.counts["untangle_pairs"] = fr.counts["untangle_moves"] = 0
         fr.counts["untangle_spread"] = fr.counts["untangle_turned"] = 0
