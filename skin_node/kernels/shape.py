@@ -149,6 +149,13 @@ def _parting(i, ptr, pa, pb, ta, tb, sep0, pw, cap, A, B, enough):
         g = math.sqrt(x * x + y * y + z * z) - sep0[q]
         if g <= 0.0:
             continue
+        # the pair counts cap tanh(g / cap) pw < g pw (tanh t < t), so where
+        # g pw does not beat the growth so far neither does the pair: no
+        # tanh, and the same growth to the last bit (the margin covers the
+        # roundings of both and tanh's error of a few ulps). Over half of the
+        # pairs that grew, once a nearer one has
+        if g * pw[q] * (1.0 + 1e-12) <= grow:
+            continue
         g = cap[q] * math.tanh(g / cap[q]) * pw[q]
         if g > grow:
             grow = g
@@ -165,11 +172,12 @@ def parting(out, verts, ptr, pa, pb, ta, tb, sep0, pw, cap, A, B):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _pull(X, i, seg, r0, hold, A, B, width, fade, pairs, allowed):
+def _pull(X, i, seg, r0, hold, A, B, width, fade, ptr, pa, pb, ta, tb, sep0, pw, cap, allowed):
     """:func:`pull_bulge` of vertex ``i``: its limits into ``allowed[i]``,
     then :func:`_limit`'s projection onto them, each segment's distance
     read once where the vertex has not moved yet (as :func:`_limit` would
-    read it again: the same skin to the last bit). 1 if it moved, else 0."""
+    read it again: the same skin to the last bit). ``ptr`` to ``cap``: the
+    :func:`parting_pairs`. 1 if it moved, else 0."""
     k = seg.shape[1]
     f = fade[i]
     if f <= 0.0:
@@ -195,8 +203,7 @@ def _pull(X, i, seg, r0, hold, A, B, width, fade, pairs, allowed):
         return 0
     # (a parting as large as the most the vertex stands out loosens every
     # limit away: the rest of it need not be read)
-    d = _parting(i, pairs[0], pairs[1], pairs[2], pairs[3], pairs[4], pairs[5], pairs[6], pairs[7],
-                 A, B, over)
+    d = _parting(i, ptr, pa, pb, ta, tb, sep0, pw, cap, A, B, over)
     qx, qy, qz = px, py, pz
     moved = False
     for s in range(k):
@@ -309,8 +316,12 @@ def pull_bulge(X, verts, seg, r0, hold, A, B, width, fade, pairs, allowed):
     its own skinned position alone). Vertices are independent: threads share
     them out. Returns how many vertices moved."""
     n = 0
+    # the pairs' arrays unpacked once: taken from the tuple in the loop, each
+    # vertex that reads them counted a reference to all eight and back
+    ptr, pa, pb, ta, tb, sep0, pw, cap = pairs
     for k in nb.prange(verts.shape[0]):
-        n += _pull(X, verts[k], seg, r0, hold, A, B, width, fade, pairs, allowed)
+        n += _pull(X, verts[k], seg, r0, hold, A, B, width, fade, ptr, pa, pb, ta, tb, sep0, pw,
+                   cap, allowed)
     return n
 
 
