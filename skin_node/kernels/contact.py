@@ -455,24 +455,26 @@ def contact_pairs(X, order, pptr, M, Minv, has, lo, hi, reach, min_angle, width,
     that starts being tested does not push its skin out all at once (1 for
     every pair when ``min_angle`` is 0)."""
     J = M.shape[0]
-    plo = np.full((J, 3), np.inf)
-    phi = np.full((J, 3), -np.inf)
+    plo, phi = np.empty((J, 3)), np.empty((J, 3))
     for a in range(J):
+        # both bounds in one pass over the part's skin, in scalars (kept in
+        # the arrays, each would be stored and read back for every vertex)
+        lx = ly = lz = rlx = rly = rlz = np.inf
+        hx = hy = hz = rhx = rhy = rhz = -np.inf
         for q in range(pptr[a], pptr[a + 1]):
             i = order[q]
-            for d in range(3):
-                plo[a, d] = min(plo[a, d], X[i, d])
-                phi[a, d] = max(phi[a, d], X[i, d])
-        for d in range(3):
-            box[a, 0, d], box[a, 1, d] = np.inf, -np.inf
-        for q in range(pptr[a], pptr[a + 1]):
-            x, y, z = _to_rest(Minv, a, X[order[q], 0], X[order[q], 1], X[order[q], 2])
-            box[a, 0, 0], box[a, 1, 0] = min(box[a, 0, 0], x), max(box[a, 1, 0], x)
-            box[a, 0, 1], box[a, 1, 1] = min(box[a, 0, 1], y), max(box[a, 1, 1], y)
-            box[a, 0, 2], box[a, 1, 2] = min(box[a, 0, 2], z), max(box[a, 1, 2], z)
-        for d in range(3):
-            box[a, 0, d] -= reach
-            box[a, 1, d] += reach
+            px, py, pz = X[i, 0], X[i, 1], X[i, 2]
+            lx, hx = min(lx, px), max(hx, px)
+            ly, hy = min(ly, py), max(hy, py)
+            lz, hz = min(lz, pz), max(hz, pz)
+            x, y, z = _to_rest(Minv, a, px, py, pz)
+            rlx, rhx = min(rlx, x), max(rhx, x)
+            rly, rhy = min(rly, y), max(rhy, y)
+            rlz, rhz = min(rlz, z), max(rhz, z)
+        plo[a, 0], plo[a, 1], plo[a, 2] = lx, ly, lz
+        phi[a, 0], phi[a, 1], phi[a, 2] = hx, hy, hz
+        box[a, 0, 0], box[a, 0, 1], box[a, 0, 2] = rlx - reach, rly - reach, rlz - reach
+        box[a, 1, 0], box[a, 1, 1], box[a, 1, 2] = rhx + reach, rhy + reach, rhz + reach
     n = 0
     corner = np.empty(3)
     for a in range(J):
