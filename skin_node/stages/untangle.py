@@ -117,17 +117,20 @@ class CoarseCrossings:
         """The coarse triangles with a corner in ``mask`` (n,) bool."""
         return self.coarse[mask[self.F[self.coarse]].any(axis=1)]
 
-    def pairs(self, X: np.ndarray, query: np.ndarray, inq: np.ndarray,
-              full: bool) -> np.ndarray:
+    def pairs(self, X: np.ndarray, query: np.ndarray, inq: np.ndarray, full: bool,
+              parts: tuple | None = None) -> np.ndarray:
         """The pairs with a triangle of ``query`` (marked in ``inq``), see
         :func:`~skin_node.kernels.intersect.crossing_pairs`; ``full`` refits
-        every box, else only those a moved corner grows."""
+        every box, else only those a moved corner grows. ``parts``: each
+        triangle's part and each tree node's (:func:`node_parts`) to search
+        by instead of the parts' (``fpart``)."""
+        fpart, npart = parts if parts is not None else (self.fpart, self._npart)
         si = self._si
         t = si.tree
         fit_tree(X, t, si.fit, full)
         lo, hi, tlo, thi, _ = si.fit
         while True:
-            n = crossing_pairs(X, self.F, query, inq, self.fpart, self._npart, t.roots, t.child,
+            n = crossing_pairs(X, self.F, query, inq, fpart, npart, t.roots, t.child,
                                t.first, t.count, t.slot, si.tris, lo, hi,
                                tlo, thi, self._out)
             if n <= len(self._out):
@@ -166,18 +169,14 @@ class CoarseCrumples:
     then."""
 
     def __init__(self, character, cross: CoarseCrossings):
-        self.F, self.coarse = cross.F, cross.coarse
-        # the crossing search's tree (each search refits it to the skin)
-        self._si = cross._si
+        self.F, self.coarse, self._cross = cross.F, cross.coarse, cross
         if not cross:
             return
-        # every triangle its own part, so the coarse crossing search
-        # (:func:`~skin_node.kernels.intersect.crossing_pairs`) finds every
-        # pair that shares no corner, a part's with itself too
-        self._own = np.arange(len(self.F), dtype=np.int64)
-        self._npart = node_parts(self._si.tree, self._si.tris, self._own)
+        # every triangle its own part, so the coarse crossing search finds
+        # every pair that shares no corner, a part's with itself too
+        own = np.arange(len(self.F), dtype=np.int64)
+        self._own = (own, node_parts(cross._si.tree, cross._si.tris, own))
         self._inq = np.zeros(len(self.F), dtype=np.bool_)
-        self._out = np.empty((256, 2), dtype=np.int64)
         r = character.rig
         self._ptr, self._adj, self._w_adj = r.adj_ptr, r.adj, character.edge_weights
         n = len(character.V)
@@ -190,22 +189,13 @@ class CoarseCrumples:
         self._bend = math.radians(CRUMPLE_BEND)
 
     def __bool__(self) -> bool:
-        return self._si is not None
+        return bool(self._cross)
 
     def _pairs(self, X: np.ndarray, query: np.ndarray) -> np.ndarray:
         """The crossing pairs (k, 2) with a triangle of ``query``."""
-        si, t = self._si, self._si.tree
-        fit_tree(X, t, si.fit, True)
-        lo, hi, tlo, thi, _ = si.fit
         self._inq[query] = True
         try:
-            while True:
-                n = crossing_pairs(X, self.F, query, self._inq, self._own, self._npart, t.roots,
-                                   t.child, t.first, t.count, t.slot, si.tris, lo, hi, tlo, thi,
-                                   self._out)
-                if n <= len(self._out):
-                    return self._out[:n].copy()
-                self._out = np.empty((2 * n, 2), dtype=np.int64)
+            return self._cross.pairs(X, query, self._inq, True, self._own)
         finally:
             self._inq[query] = False
 
