@@ -184,7 +184,8 @@ class CoarseCrumples:
         self._queue = np.empty(n, dtype=np.int64)
         self._label = np.full(n, -2, dtype=np.int64)
         self._V0 = np.ascontiguousarray(character.V)
-        self._fa, self._fb = coarse_edges(self.F, self.coarse)
+        #: the pairs of triangles sharing an edge, one of them coarse
+        self.edges = coarse_edges(self.F, self.coarse)
         self._all, self._hit = np.ones(n, dtype=np.bool_), np.zeros(n, dtype=np.bool_)
         self._bend = math.radians(CRUMPLE_BEND)
 
@@ -222,7 +223,7 @@ class CoarseCrumples:
         cannot cross itself a few rings away without folding somewhere
         between."""
         hit = self._hit
-        if not bent_edges(X, self._V0, self.F, self._fa, self._fb, self._all, self._bend, hit):
+        if not bent_edges(X, self._V0, self.F, *self.edges, self._all, self._bend, hit):
             return self.coarse[:0]
         src = np.flatnonzero(hit)
         hit[src] = False
@@ -527,7 +528,7 @@ class Untangle(Stage):
         self._in2 = np.zeros(m, dtype=np.bool_)
         self._vf_ptr, self._vf = vertex_faces(self.F, n)
         self._ptr, self._adj = character.rig.adj_ptr, character.rig.adj
-        self._efaces = coarse_edges(self.F, self.coarse)
+        self._efaces = self._crumples.edges
         self._moved, self._hit = np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.bool_)
         self._near = np.zeros(n, dtype=np.bool_)
         self._disp, self._count = np.zeros((n, 3)), np.zeros(n, dtype=np.int64)
