@@ -40,10 +40,16 @@ READY_TIMEOUT = 300.0     # a cold rig cache builds the arm's tets and weights f
 
 
 def _base_env() -> dict:
-    """Environment of the tools: DDS on localhost, unbuffered output, this source tree."""
+    """Environment of the tools: DDS on localhost, unbuffered output, this source tree.
+
+    The source tree comes before the colcon install's copy of it: the installed
+    executables then run the code under test, and read the kernels this process
+    compiled from numba's cache (kept beside each source file) instead of
+    compiling them again for the copy (about 90 s on a fresh clone).
+    ``test_install_layout`` starts the install tree alone."""
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1",
                RCUTILS_LOGGING_BUFFERED_STREAM="0")
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [env.get("PYTHONPATH"), str(REPO)]))
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
     return env
 
 
@@ -704,18 +710,28 @@ def test_tools_started_and_stopped_20_times_exit_0_every_time(tmp_path):
             player = subprocess.Popen(
                 player_cmd + (["--frames", "30"] if how == "done" else ["--loop"]),
                 env=env, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            # Both start at once (each takes seconds to import and join the
+            # domain); the replay ends before a looping player is signalled.
+            bag = subprocess.Popen(
+                _command("skin_bag", "skin_node.bag_tool")
+                + [str(tmp_path / "in"), str(tmp_path / f"out{k}"),
+                   "--record", "skin/points", "--linger", "0.3"],
+                env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
             try:
                 err = _wait_for_line(player.stderr, "playing 'elbow_bend'", 60.0)
-                out = play_and_record(env, tmp_path / "in", tmp_path / f"out{k}",
-                                      "--record", "skin/points", "--linger", "0.3")
+                out, bag_err = bag.communicate(timeout=300)
+                assert bag.returncode == 0, out + bag_err
                 assert "played 10 joint states" in out
                 if how != "done":
+                    assert player.poll() is None, "the looping player ended unsignalled"
                     player.send_signal(how)
                 err += player.communicate(timeout=30)[1]
             finally:
                 stop(player, signal.SIGKILL)
+                stop(bag, signal.SIGKILL)
             codes.append(player.returncode)
             assert "terminate called" not in err and "Traceback" not in err, err
+            assert "terminate called" not in bag_err and "Traceback" not in bag_err, bag_err
             if how == "done":
                 assert "sent 30 frames" in err
         assert proc.poll() is None
