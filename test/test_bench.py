@@ -293,17 +293,25 @@ def test_carried_streams_in_real_time_and_grades_what_it_answered(tmp_path, caps
     """skin_bench carried on the arm's elbow bend at 120 Hz: every pose
     answered within a small multiple of DQS's time in the same run (measured
     2.4x on 2,000 vertices, where fixed costs weigh most; 1.2x on the 24k
-    humanoid), and the answers, graded after the stream, keep the solved
-    skin's clean crease (measured 0 pairs and 0 sharp folds against DQS's
-    2,287 and 140)."""
+    humanoid; 2.6x with two busy processes beside it), and the answers,
+    graded after the stream, cross and fold less than DQS's.
+
+    How much less depends on the machine: a correction that lands later is
+    older when the elbow bends fastest. On a quiet machine, 0 pairs and 0
+    sharp folds against DQS's 2,287 and 140 (correction 1-3 poses old); with
+    two busy processes beside it, 339 and 21 (6 / 14 / 25 poses old); with
+    three on two cores, 650 and 38 (10 / 27 / 42). The skin at a given age is
+    graded on a fixed schedule, below."""
     assert cli.main(["carried", "--scene", "arm:2000", "--clips", "elbow_bend", "--out",
                      str(tmp_path), "--no-progress"]) == 0
     assert "| arm:2000 | elbow_bend at 120 Hz |" in capsys.readouterr().out
     (r,) = json.loads((tmp_path / "carried.json").read_text())
     assert r["frames"] == 360 and r["frames_measured"] == 88 and r["solves_failed"] == 0
     assert r["answer_x_dqs_p50"] < 6.0, r
-    assert r["dqs_pairs"] > 500 and r["answer_pairs"] <= 0.02 * r["dqs_pairs"], r
-    assert r["answer_folds90"] <= r["solved_folds90"] + 2 < r["dqs_folds90"], r
+    assert r["dqs_pairs"] > 500 and r["answer_pairs"] <= 0.5 * r["dqs_pairs"], r
+    assert r["answer_folds90"] <= 0.5 * r["dqs_folds90"], r
+    assert r["solved_pairs"] <= 0.02 * r["dqs_pairs"], r
+    assert r["solved_folds90"] + 2 < r["dqs_folds90"], r
     assert abs(r["answer_roughness"] / r["solved_roughness"] - 1.0) < 0.01, r
     assert 0 <= r["lag_p50"] <= r["lag_max"], r
 
@@ -330,6 +338,7 @@ def test_carried_on_a_fixed_schedule_is_repeatable_and_as_old_as_asked(tmp_path,
                 "dev_max_mm", "faded"):
         assert rows[1][key] == r[key], key
     assert r["dqs_pairs"] > 500 and r["answer_pairs"] <= 0.02 * r["dqs_pairs"], r
+    assert r["answer_folds90"] <= r["solved_folds90"] + 2 < r["dqs_folds90"], r
     assert r["dev_median_mm"] > 0.0, r          # a correction 3-5 poses old is not the solved one
 
 
