@@ -116,6 +116,12 @@ PIPELINE_PARAMS = {
     "contact_settle": ParamSpec(int, 1, 0, 50, "Laplacian passes over the contact's "
                                 "displacement after its last exact projection, the skin held "
                                 "by the constraints' tangent planes"),
+    "contact_apart_threshold": ParamSpec(float, 0.0, 0.0, 3.2, "parts that meet at no "
+                                         "joint and hang from different joints (a shin and "
+                                         "the other shin, a hand and the chest) are tested "
+                                         "for contact once their bones turned this far from "
+                                         "each other since rest (rad; 0: at any turn); the "
+                                         "others from active_threshold"),
     "contact_rings": ParamSpec(int, 3, 0, 20, "rings around skin in contact that follow it"),
     "contact_smoothing": ParamSpec(int, 4, 0, 50, "Laplacian passes over the contact's "
                                    "displacement per round"),

@@ -440,7 +440,7 @@ def hold_planes(X, verts, moved, plane):
 
 @nb.njit(cache=True, nogil=True)
 def contact_pairs(X, order, pptr, M, Minv, has, lo, hi, reach, min_angle, width, box,
-                  cand_ptr, cand, fade):
+                  cand_ptr, cand, fade, apart, apart_angle):
     """The part pairs to test in pose ``M`` (J, 4, 4), and each part's box.
 
     ``box[b]`` (2, 3): part ``b``'s posed skin (vertices ``order[pptr[b]:
@@ -490,10 +490,11 @@ def contact_pairs(X, order, pptr, M, Minv, has, lo, hi, reach, min_angle, width,
                 for c in range(3):
                     tr += M[a, c, r] * M[b, c, r]
             angle = math.acos(min(1.0, max(-1.0, 0.5 * (tr - 1.0))))
-            if angle < min_angle:
+            least = apart_angle if apart[a, b] else min_angle
+            if angle < least:
                 continue
             # no threshold, nothing to come in over: every pair in full
-            t = min(1.0, (angle - min_angle) / max(width, 1e-9)) if min_angle > 0.0 else 1.0
+            t = min(1.0, (angle - least) / max(width, 1e-9)) if least > 0.0 else 1.0
             fade[a, b] = t * t * (3.0 - 2.0 * t)
             clo = np.full(3, np.inf)
             chi = np.full(3, -np.inf)
@@ -644,4 +645,3 @@ def pair_depths(V0, vptr, vidx, pairs, M, Minv, centre, ball, pf, excess, worst,
         worst[p] = flesh_depth(V0, vidx[vptr[a]:vptr[a + 1]], T, b, pf, excess[p], out)
         sums[p, :] = out
     return worst
-
