@@ -453,7 +453,8 @@ def contact_pairs(X, order, pptr, M, Minv, has, lo, hi, reach, min_angle, width,
     ``fade[a, b]`` (J, J) gets how far the pair's contact has come in: from 0
     at ``min_angle`` to 1 at ``min_angle + width`` (smoothstep), so a pair
     that starts being tested does not push its skin out all at once (1 for
-    every pair when ``min_angle`` is 0)."""
+    every pair when ``min_angle`` is 0). Pairs ``apart[a, b]`` (J, J) take
+    ``apart_angle`` for ``min_angle``."""
     J = M.shape[0]
     plo, phi = np.empty((J, 3)), np.empty((J, 3))
     for a in range(J):
@@ -645,3 +646,4 @@ def pair_depths(V0, vptr, vidx, pairs, M, Minv, centre, ball, pf, excess, worst,
         worst[p] = flesh_depth(V0, vidx[vptr[a]:vptr[a + 1]], T, b, pf, excess[p], out)
         sums[p, :] = out
     return worst
+

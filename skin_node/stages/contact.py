@@ -152,15 +152,6 @@ class Contact(Stage):
         skin it was built from."""
         return self._edge_max + float(self.params["contact_onset"]) * self._sag_max
 
-    def _margins(self) -> tuple[np.ndarray, np.ndarray]:
-        """Each vertex's contact margin and onset (see :meth:`__call__`)."""
-        # in edges of the skin's resolution or, on finer skin, of the one
-        # the counts are given at: the gap stays as wide as the crease's
-        # rounding (in edges of its own, the 90k humanoid's squat kept 2.8
-        # times the intersecting pairs over every 8th frame)
-        margin = float(self.params["contact_margin"]) * self.character.smoothing_scale * self._edge
-        return margin, float(self.params["contact_onset"]) * self._sag
-
     def pairs(self, fr: Frame):
         """The part pairs to test this frame (:func:`~skin_node.kernels.contact.contact_pairs`):
         ``(cand_ptr (J+1,), cand, Minv (J, 4, 4), box (J, 2, 3))``, parts
@@ -200,7 +191,12 @@ class Contact(Stage):
                                             self._boxed)]
         X0 = X.copy()
         Q = matrices_to_dual_quaternions(fr.M)
-        margin, onset = self._margins()
+        # in edges of the skin's resolution or, on finer skin, of the one
+        # the counts are given at: the gap stays as wide as the crease's
+        # rounding (in edges of its own, the 90k humanoid's squat kept 2.8
+        # times the intersecting pairs over every 8th frame)
+        margin = float(self.params["contact_margin"]) * self.character.smoothing_scale * self._edge
+        onset = float(self.params["contact_onset"]) * self._sag
         moved = self._moved
         moved[:] = False
         # what both projections read besides the skin and the vertices to test
