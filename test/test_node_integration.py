@@ -116,8 +116,13 @@ def ros_client(env: dict, name: str):
         rclpy.try_shutdown(context=ctx)
 
 
+def bag_command(in_bag: Path, out_bag: Path, *args: str) -> list:
+    """``skin_bag`` replaying ``in_bag`` into ``out_bag``."""
+    return _command("skin_bag", "skin_node.bag_tool") + [str(in_bag), str(out_bag), *args]
+
+
 def play_and_record(env: dict, in_bag: Path, out_bag: Path, *args: str) -> str:
-    cmd = _command("skin_bag", "skin_node.bag_tool") + [str(in_bag), str(out_bag), *args]
+    cmd = bag_command(in_bag, out_bag, *args)
     res = subprocess.run(cmd, env=env, cwd=REPO, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stdout + res.stderr
     return res.stdout
@@ -713,9 +718,8 @@ def test_tools_started_and_stopped_20_times_exit_0_every_time(tmp_path):
             # Both start at once (each takes seconds to import and join the
             # domain); the replay ends before a looping player is signalled.
             bag = subprocess.Popen(
-                _command("skin_bag", "skin_node.bag_tool")
-                + [str(tmp_path / "in"), str(tmp_path / f"out{k}"),
-                   "--record", "skin/points", "--linger", "0.3"],
+                bag_command(tmp_path / "in", tmp_path / f"out{k}", "--record", "skin/points",
+                            "--linger", "0.3"),
                 env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
             try:
                 err = _wait_for_line(player.stderr, "playing 'elbow_bend'", 60.0)
@@ -746,8 +750,7 @@ def test_skin_bag_interrupted_exits_1_in_order(tmp_path):
     for k, sig in enumerate([signal.SIGINT, signal.SIGTERM] * 3):
         with ros_env() as env:        # a domain of its own, where no node answers
             bag = subprocess.Popen(
-                _command("skin_bag", "skin_node.bag_tool")
-                + [str(tmp_path / "in"), str(tmp_path / f"out{k}"), "--wait", "60"],
+                bag_command(tmp_path / "in", tmp_path / f"out{k}", "--wait", "60"),
                 env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
             try:
                 # Its participant binds the domain's ports once ROS is up: signal then.
