@@ -173,9 +173,13 @@ PIPELINE_PARAMS = {
                             "hand, a shin, a foot) out of another part's flesh it lies deeper "
                             "in than this, in the limb's radii (skin to bone at rest), until "
                             "it lies no deeper (0: never)"),
-    "turn_shift": ParamSpec(float, 4.0, 0.0, 10.0, "the farthest the turn stage moves skin, "
-                            "in the turned limb's radii (a limb that would need more is "
-                            "turned this far and the contact does the rest)"),
+    "turn_shift": ParamSpec(float, 4.0, 0.0, 10.0, "the farthest one turn of the turn stage "
+                            "moves skin, in the turned limb's radii (a limb that would need "
+                            "more is turned this far and the contact does the rest)"),
+    "turn_rate": ParamSpec(float, 1.0, 0.0, 100.0, "the most the turn stage's turn of a joint "
+                           "changes from one frame to the next, in shares of the most any "
+                           "channel of the pose turned between them (0: no limit, each pose "
+                           "turned on its own)"),
     "bulge_limit": ParamSpec(float, 0.1, 0.001, 2.0, "the most skin stands out from its bone "
                              "beyond its rest distance, in rest distances"),
     "bulge_smoothing": ParamSpec(int, 2, 0, 100, "Laplacian passes over the bulge limit's "

@@ -609,8 +609,12 @@ def test_a_lean_with_the_arms_down_turns_the_arm_out_of_the_hip(humanoid, pose):
     rougher skin (1.075 to 1.134 against 1.034 to 1.041) and sharp folds
     DQS does not have (2, 12, 9 and 30 where it has none); turned out about
     the shoulder, none of either, roughness within 5% of DQS's (within
-    1.7%), no skin moved further than the turn's cap. Capped at 3 limb
-    radii (the default before), leaning 40 degrees kept 142 pairs."""
+    1.7%). Each turn moves no skin further than its cap; the forearm's and
+    then the hand's turn about the shoulder add up, and the skin moved
+    (DQS on the turned bones against DQS, measured 44, 138, 239, 99, 208
+    and 115 mm) stays within two caps (144 mm each), with the stage's
+    ``turn_mm`` count no less than it. Capped at 3 limb radii (the default
+    before), leaning 40 degrees kept 142 pairs."""
     ch = humanoid
     q = _lean(ch, *LEANS[pose])
     si, sq = SelfIntersections(ch.V, ch.F, 0.0), SurfaceQuality(ch.V, ch.F)
@@ -626,14 +630,19 @@ def test_a_lean_with_the_arms_down_turns_the_arm_out_of_the_hip(humanoid, pose):
     assert o["folds90"] <= d["folds90"], out
     assert o["roughness"] <= 1.05 * d["roughness"], out
     radius = ch.nearest_segments[1][:, 0][ch.rig.part == ch.skeleton.index("r_elbow")]
-    cap = float(Pipeline(ch).params["turn_shift"])
-    assert 0.0 < o["turn_mm"] <= 1e3 * cap * np.median(radius) + 1e-6, out
+    cap = 1e3 * float(Pipeline(ch).params["turn_shift"]) * np.median(radius)
+    turned = Pipeline(ch, ("turn", "dqs")).deform(q)[:len(ch.V)]
+    moved = 1e3 * np.sqrt(((turned - Pipeline(ch, ("dqs",)).deform(q)[:len(ch.V)]) ** 2)
+                          .sum(axis=1)).max()
+    assert 0.0 < moved <= 2.0 * cap and o["turn_mm"] >= moved - 1e-6, (moved, cap, out)
 
 
 def test_the_turn_comes_in_and_holds_without_a_jump(humanoid):
     """Leaning from 14 to 60 degrees a degree a step, arms down: the turn
-    starts from nothing, grows to about 100 mm at the hand by 28 degrees and
-    holds at its cap (144-149 mm) from 33, while the default's correction of
+    starts from nothing, grows to 119 mm at the hand by 28 degrees and holds
+    from 45, the forearm's and then the hand's turn about the shoulder each
+    at its cap (291 mm in all; it never falls back by more than the
+    bisection's 0.01 mm), while the default's correction of
     DQS changes by at most 11 mm a step up to 46 degrees (no intersecting
     pair there), and by at most 36 mm beyond, where the contact flattens the
     hand into the hip. Turned each its own least way out about a pivot that
@@ -652,10 +661,45 @@ def test_the_turn_comes_in_and_holds_without_a_jump(humanoid):
         last = C
     turned, steps = np.array(turned), np.array(steps)
     assert turned[0] == 0.0 and turned[28 - 14] >= 90.0, turned
-    assert np.all(np.diff(turned) >= 0.0), turned
+    assert np.all(np.diff(turned) >= -0.01), turned
     # steps[i] is the step onto 15 + i degrees
     assert steps[:46 - 14].max() <= 15.0, steps
     assert steps.max() <= 40.0, steps
+
+
+def test_the_turn_changes_no_faster_than_the_pose(humanoid):
+    """A thigh turned in from 15 to 23 degrees a quarter degree a step
+    (``r_hip_rx``, nothing else). Each pose's turn is found for that pose
+    alone, and it changes which limb turns twice: the left foot until 18.25
+    degrees, the right shin about the right hip at 18.5 and 18.75, the left
+    thigh about its own from 19. With no rate (``turn_rate`` 0) the
+    correction of DQS jumps 123 and 126 mm in those two steps (measured),
+    against 4-5 mm a step before them. Held to the pose's own change, the
+    largest step is 16 mm (measured), each new turn coming in over the next
+    steps. A fresh pipeline (its first frame) is turned as the pose alone;
+    stepped from 18.75 to 19 degrees and held there, it starts from the last
+    turn and reaches what 19 degrees alone gets, to the bit."""
+    ch = humanoid
+    n = len(ch.V)
+    dq = Pipeline.preset(ch, "dqs")
+    poses = [ch.pose(r_hip_rx=np.radians(d)) for d in np.arange(15.0, 23.01, 0.25)]
+
+    def steps(pipe):
+        C = [pipe.deform(q)[:n] - dq.deform(q)[:n] for q in poses]
+        return np.array([1e3 * np.sqrt(((b - a) ** 2).sum(axis=1)).max()
+                         for a, b in zip(C, C[1:])])
+    held, free = Pipeline(ch), Pipeline(ch, turn_rate=0.0)
+    a, b = steps(held), steps(free)
+    assert b.max() >= 100.0 and a.max() <= 20.0, (a.round(1), b.round(1))
+    # from 18.75 to 19 degrees, then held there
+    alone = Pipeline(ch, turn_rate=0.0).deform(poses[16])[:n].copy()
+    held = Pipeline(ch)
+    assert np.array_equal(held.deform(poses[15])[:n], free.deform(poses[15])[:n])
+    X = held.deform(poses[16])[:n]
+    assert 1e3 * np.sqrt(((X - alone) ** 2).sum(axis=1)).max() >= 50.0
+    for _ in range(40):
+        X = held.deform(poses[16])[:n]
+    assert np.array_equal(X, alone)
 
 
 def test_a_contact_pair_comes_in_without_a_jump(humanoid):

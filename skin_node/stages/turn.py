@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 from ..kernels.contact import pair_depths
 from ..skeleton import matrix_to_euler_xyz
@@ -53,6 +54,10 @@ SIBLING_DEPTH = 0.75
 #: other thigh, the other upper arm), not out of a larger one (the spine
 #: beside the thighs, the upper arms beside the neck).
 TWIN = 0.9
+#: With ``turn_rate``, a joint's turn may also change by SETTLE radians a
+#: frame beyond the pose's own change, so a turn held back comes in while the
+#: pose is held (0.4 radians, a turn at its cap, in 40 frames).
+SETTLE = 0.01
 
 
 def _rotation(axis: np.ndarray, angle: float, o: np.ndarray) -> np.ndarray:
@@ -105,12 +110,13 @@ class Turn(Stage):
     ``turn_depth``). It turns back towards where it sat against those parts
     at rest (the way it lay from the pivot in their frames then: for an arm
     hanging into the hip, out to the side, towards the T-pose), a way that
-    follows the pose smoothly. No skin it carries moves more than
+    follows the pose smoothly. No turn moves the skin it carries more than
     ``turn_shift`` limb radii: a limb that would need more (or that no turn
     within that takes out) is turned that far and the contact does the
-    rest. The least angle grows from zero as the limb sinks in and stays at
-    the cap as it sinks further, so the turn comes in and holds without a
-    jump; the poses that the contact creases cleanly (every built-in
+    rest (a hand turned after its forearm turns about the same joint
+    again: the two add up). The least angle grows from zero as the limb
+    sinks in and stays at the cap as it sinks further, so the turn comes in
+    and holds without a jump; the poses that the contact creases cleanly (every built-in
     clip's frames, the test poses beyond them but one) stay below
     ``turn_depth`` and are skinned as posed.
 
@@ -119,10 +125,14 @@ class Turn(Stage):
     ``turn_depth``s deep, and turns about its own joint along the other
     part's field gradients, within that joint's limits (:data:`SIBLING_DEPTH`).
 
+    From one frame to the next each joint's turn changes no faster than
+    the pose (``turn_rate``, :meth:`_follow`): a small change of pose can
+    change which limb turns, and the turn then comes in over frames.
+
     The frame's bones (``G``, ``M``, the posed segments) are the turned ones
-    for every stage after this one; the skin stands on them. How many limbs
-    turned and the farthest any skin moved (mm) are the frame's counts
-    ``turned`` and ``turn_mm``.
+    for every stage after this one; the skin stands on them. How many joints
+    turned and the farthest any rest skin moved, carried by its bone (mm),
+    are the frame's counts ``turned`` and ``turn_mm``.
     """
 
     name = "turn"
@@ -209,6 +219,20 @@ class Turn(Stage):
         self._rest = np.asarray(sk.rest_positions, dtype=np.float64)
         self._rest_rot = np.asarray(sk.rest_rotations, dtype=np.float64)
         self._limits = sk.limits
+        # the joints with parents before their children, for posing them again
+        depth_of = np.zeros(J, dtype=np.int64)
+        for j in range(J):
+            k = j
+            while self._parents[k] >= 0:
+                depth_of[j] += 1
+                k = self._parents[k]
+        self._order = np.argsort(depth_of, kind="stable")
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the last frame's pose and turns (``turn_rate``)."""
+        self._last_q = None
+        self._held = None
 
     def _limit(self, a):
         """How deep parts ``a`` may lie in another's flesh, in ``turn_depth``s
@@ -286,8 +310,14 @@ class Turn(Stage):
     def __call__(self, fr: Frame) -> None:
         fr.counts["turned"], fr.counts["turn_mm"] = 0, 0.0
         depth, shift = float(self.params["turn_depth"]), float(self.params["turn_shift"])
-        if depth <= 0.0 or shift <= 0.0 or not len(self._pairs):
-            return
+        G_posed, M_posed = fr.G.copy(), fr.M.copy()
+        if depth > 0.0 and shift > 0.0 and len(self._pairs):
+            self._turn(fr, depth, shift)
+        self._follow(fr, G_posed, M_posed)
+
+    def _turn(self, fr: Frame, depth: float, shift: float) -> None:
+        """Each limb that lies deep turned out, in ``fr.G`` and ``fr.M``
+        (the class's text)."""
         M, G = fr.M, fr.G
         a = self._pairs[:, 0]
         D = depth * self._limit(a)
@@ -386,9 +416,81 @@ class Turn(Stage):
                     break
             place(axis, angle)
             moved |= sub
-            fr.counts["turned"] += 1
-            fr.counts["turn_mm"] = max(fr.counts["turn_mm"],
-                                       2e3 * math.sin(0.5 * angle) * self._reach[k])
+
+    def _follow(self, fr: Frame, G_posed: np.ndarray, M_posed: np.ndarray) -> None:
+        """The turns held to ``turn_rate``: each joint's turn (its rotation
+        in its parent's frame as turned, against as posed) changes from the
+        last frame's by at most ``turn_rate`` times the most any channel of
+        the pose turned since it, plus :data:`SETTLE` (the least rotation
+        that far towards the turn wanted); then the bones are posed again
+        with those turns and the counts say what was applied.
+
+        Each pose's turn is the least way out found for it alone, and a small
+        change of pose can change which limb turns, or turn one from its
+        least way out to its cap: a thigh turned a quarter degree further in
+        towards the other swung the skin 126 mm between frames. The limit spreads
+        such a jump over the frames the pose takes to move as far; a pose far
+        from the last (independent poses, a jump in the stream) is turned as
+        found. The first frame after :meth:`reset` is turned as found."""
+        par = self._parents
+        rate, last, held = float(self.params["turn_rate"]), self._last_q, self._held
+        self._last_q = fr.q.copy()
+        if held is None and np.array_equal(fr.G, G_posed):
+            return      # nothing turned, nor held from the last frame
+        kids = np.flatnonzero(par >= 0)
+        up = par[kids]
+        J = len(par)
+        # each joint's turn in its parent's frame: turned local rotation
+        # times the posed one's inverse
+        want = np.tile(np.eye(3), (J, 1, 1))
+        local = np.einsum("kji,kjl->kil", G_posed[up, :3, :3], G_posed[kids, :3, :3])
+        turned = np.einsum("kji,kjl->kil", fr.G[up, :3, :3], fr.G[kids, :3, :3])
+        want[kids] = turned @ np.transpose(local, (0, 2, 1))
+        applied = want
+        if rate > 0.0 and last is not None:
+            if held is None:
+                held = np.tile(np.eye(3), (J, 1, 1))
+            turn = np.abs((fr.q[3:] - last[3:] + np.pi) % (2.0 * np.pi) - np.pi)
+            most = rate * (float(turn.max()) if len(turn) else 0.0) + SETTLE
+            E = Rotation.from_matrix(want @ np.transpose(held, (0, 2, 1))).as_rotvec()
+            angle = np.sqrt((E * E).sum(axis=1))
+            over = angle > most
+            if over.any():
+                E[over] *= (most / angle[over])[:, None]
+                applied = want.copy()
+                applied[over] = Rotation.from_rotvec(E[over]).as_matrix() @ held[over]
+        on = np.abs(applied - np.eye(3)).max(axis=(1, 2)) > 1e-9
+        # (none held: the next frame starts from none)
+        self._held = applied if rate > 0.0 and on.any() else None
+        fr.counts["turned"] = int(on.sum())
+        if applied is not want:
+            # posed again, parents first, each joint's local rotation turned
+            # by what was applied; each skinning matrix follows its bone
+            G, M = fr.G, fr.M
+            moved = np.zeros(J, dtype=bool)
+            for j in self._order:
+                p = par[j]
+                if p < 0 or not (on[j] or moved[p]):
+                    G[j], M[j] = G_posed[j], M_posed[j]
+                    continue
+                moved[j] = True
+                Lp = np.linalg.inv(G_posed[p]) @ G_posed[j]
+                G[j, :3, :3] = G[p, :3, :3] @ applied[j] @ Lp[:3, :3]
+                G[j, :3, 3] = G[p, :3, :3] @ Lp[:3, 3] + G[p, :3, 3]
+                M[j] = G[j] @ np.linalg.inv(G_posed[j]) @ M_posed[j]
+        M = fr.M
+        moved = np.any(fr.G != G_posed, axis=(1, 2))
+        # the farthest any rest skin moved, carried by its bone as turned
+        # against as posed (two turns about one joint, a forearm's and then
+        # its hand's, add up)
+        far = 0.0
+        for j in np.flatnonzero(moved):
+            v = self._V0[self._verts[j]]
+            D = M[j, :3] - M_posed[j, :3]
+            if len(v):
+                far = max(far, float(np.sqrt(((v @ D[:, :3].T + D[:, 3]) ** 2)
+                                             .sum(axis=1)).max()))
+        fr.counts["turn_mm"] = 1e3 * far
         if moved.any():
             s = moved[self._seg_joint]
             j = self._seg_joint[s]
