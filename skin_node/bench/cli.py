@@ -580,8 +580,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="comma-separated character:surface_vertices[:tets] (or a character "
                         "file), each with @file for a glTF's own weights (automatic unless said)")
     r.add_argument("--clips", default="", help="clips and pose sweeps (elbow_bend, wrist_twist, "
-                   "walk, squat, elbow_sweep, twist_sweep, random_poses: 30 seeded poses within "
-                   "the joint limits, random_poses:SEED from another seed) or a glTF "
+                   "walk, squat, elbow_sweep, twist_sweep, thigh_sweep, random_poses: 30 seeded "
+                   "poses within the joint limits, random_poses:SEED from another seed) or a glTF "
                    "character's animations (NAME or gltf:NAME), or BVH files retargeted to the "
                    "character; default per character, a glTF's own animations")
     r.add_argument("--iterations", default="", help="sweep, e.g. 1,2,5,10,30")

@@ -286,8 +286,13 @@ def clip_motion(name: str, clip_frames: np.ndarray, fps: float, stride: int = 1,
     return Motion(name, frames, None, fps / stride, dense)
 
 
-#: Pose sweeps on the arm: (channel, last angle in degrees).
-SWEEPS = {"elbow_sweep": ("elbow_rz", 180.0), "twist_sweep": ("wrist_rx", 360.0)}
+#: Pose sweeps: (channel, last angle in degrees). On the arm its elbow
+#: and its wrist's twist; on the humanoid a thigh turned in towards the
+#: other (``thigh_sweep``), across the angles where the turn stage moves
+#: from one limb to another (its ``turn_rate``; the sweep's jitter is a
+#: step's change).
+SWEEPS = {"elbow_sweep": ("elbow_rz", 180.0), "twist_sweep": ("wrist_rx", 360.0),
+          "thigh_sweep": ("r_hip_rx", 25.0)}
 #: ``random_poses``: how many, and the seed.
 RANDOM_POSES = (30, 7)
 
@@ -335,7 +340,7 @@ def make_motion(name: str, character, steps: int = 37, stride: int = 1,
             return None
         x = np.linspace(0.0, top, steps)
         frames = np.stack([skel.pose(**{chan: np.radians(a)}) for a in x])
-        return Motion(name, frames, x)
+        return Motion(name, frames, x, dense=frames)
     try:
         clip = make_clip(name, skel)
     except ValueError:
