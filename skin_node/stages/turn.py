@@ -414,6 +414,15 @@ class Turn(Stage):
                         lo, hi = (lo, mid) if out(axis, mid) else (mid, hi)
                     angle = hi
                     break
+            else:
+                # none takes it out: to the cap; a limb's top part only if
+                # that leaves it less deep (turned along the other's field
+                # gradients, it can go in deeper)
+                if self._top[a]:
+                    place(axis, top)
+                    if self._depths(fr, rows, depth, Minv)[0].max() >= worst[deep].max():
+                        place(axis, 0.0)
+                        continue
             place(axis, angle)
             moved |= sub
 
