@@ -116,9 +116,9 @@ class Turn(Stage):
     rest (a hand turned after its forearm turns about the same joint
     again: the two add up). The least angle grows from zero as the limb
     sinks in and stays at the cap as it sinks further, so the turn comes in
-    and holds without a jump; the poses that the contact creases cleanly (every built-in
-    clip's frames, the test poses beyond them but one) stay below
-    ``turn_depth`` and are skinned as posed.
+    and holds without a jump; the poses that the contact creases cleanly
+    (every built-in clip's frames, the test poses beyond them but one) stay
+    below ``turn_depth`` and are skinned as posed.
 
     A limb's top part (a thigh, an upper arm) is tested against its twin
     alone (a thigh against the other thigh, :data:`TWIN`), from SIBLING_DEPTH
@@ -219,14 +219,6 @@ class Turn(Stage):
         self._rest = np.asarray(sk.rest_positions, dtype=np.float64)
         self._rest_rot = np.asarray(sk.rest_rotations, dtype=np.float64)
         self._limits = sk.limits
-        # the joints with parents before their children, for posing them again
-        depth_of = np.zeros(J, dtype=np.int64)
-        for j in range(J):
-            k = j
-            while self._parents[k] >= 0:
-                depth_of[j] += 1
-                k = self._parents[k]
-        self._order = np.argsort(depth_of, kind="stable")
         self.reset()
 
     def reset(self) -> None:
@@ -437,10 +429,10 @@ class Turn(Stage):
         Each pose's turn is the least way out found for it alone, and a small
         change of pose can change which limb turns, or turn one from its
         least way out to its cap: a thigh turned a quarter degree further in
-        towards the other swung the skin 126 mm between frames. The limit spreads
-        such a jump over the frames the pose takes to move as far; a pose far
-        from the last (independent poses, a jump in the stream) is turned as
-        found. The first frame after :meth:`reset` is turned as found."""
+        towards the other swung the skin 126 mm between frames. The limit
+        spreads such a jump over the frames the pose takes to move as far; a
+        pose far from the last (independent poses, a jump in the stream) is
+        turned as found, and so is the first frame after :meth:`reset`."""
         par = self._parents
         rate, last, held = float(self.params["turn_rate"]), self._last_q, self._held
         self._last_q = fr.q.copy()
@@ -473,11 +465,12 @@ class Turn(Stage):
         self._held = applied if rate > 0.0 and on.any() else None
         fr.counts["turned"] = int(on.sum())
         if applied is not want:
-            # posed again, parents first, each joint's local rotation turned
-            # by what was applied; each skinning matrix follows its bone
+            # posed again, parents first (the skeleton's order), each joint's
+            # local rotation turned by what was applied; each skinning matrix
+            # follows its bone
             G, M = fr.G, fr.M
             moved = np.zeros(J, dtype=bool)
-            for j in self._order:
+            for j in range(J):
                 p = par[j]
                 if p < 0 or not (on[j] or moved[p]):
                     G[j], M[j] = G_posed[j], M_posed[j]
